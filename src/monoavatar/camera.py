@@ -75,9 +75,7 @@ class PinholeCamera:
         t: np.ndarray | None = None,
     ) -> PinholeCamera:
         """A camera with square pixels and the principal point at the image centre."""
-        K = np.array(
-            [[focal_px, 0.0, width / 2.0], [0.0, focal_px, height / 2.0], [0.0, 0.0, 1.0]]
-        )
+        K = np.array([[focal_px, 0.0, width / 2.0], [0.0, focal_px, height / 2.0], [0.0, 0.0, 1.0]])
         return PinholeCamera(
             K=K,
             R=np.eye(3) if R is None else R,
@@ -100,7 +98,7 @@ class PinholeCamera:
         eye = np.asarray(eye, dtype=np.float64)
         z = np.asarray(target, dtype=np.float64) - eye
         z /= np.linalg.norm(z)
-        x = np.cross(z, -np.asarray(up, dtype=np.float64))  # image y points down
+        x = np.cross(z, np.asarray(up, dtype=np.float64))  # right = forward × up
         if np.linalg.norm(x) < 1e-9:
             raise CameraError("up is parallel to the viewing direction")
         x /= np.linalg.norm(x)

@@ -1,0 +1,22 @@
+"""Shared fixtures: body models are built once per test session (Anny's first build compiles
+and caches kernels; later builds take about half a second)."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from monoavatar.body import load_body_model
+from monoavatar.body.model import BodyModel
+
+
+@pytest.fixture(scope="session")
+def anny64() -> BodyModel:
+    """Anny without local changes, float64 (for tight numerical comparisons)."""
+    return load_body_model("anny", dtype=torch.float64)
+
+
+@pytest.fixture(scope="session")
+def anny32() -> BodyModel:
+    """Anny without local changes, float32 (what the pipeline uses)."""
+    return load_body_model("anny", dtype=torch.float32)
