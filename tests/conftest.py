@@ -20,3 +20,9 @@ def anny64() -> BodyModel:
 def anny32() -> BodyModel:
     """Anny without local changes, float32 (what the pipeline uses)."""
     return load_body_model("anny", dtype=torch.float32)
+
+
+@pytest.fixture(scope="session")
+def anny_local() -> BodyModel:
+    """Anny with its 256 local changes, float32 (ground-truth subjects use it)."""
+    return load_body_model("anny-local", dtype=torch.float32)

@@ -1,0 +1,95 @@
+"""Mesh files: Wavefront OBJ with separately indexed UVs (+ MTL + texture PNG), binary PLY,
+and an MP4 writer. Every writer writes to a temporary name and renames, so a failure leaves
+no half-written file."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+
+
+@contextmanager
+def atomic_path(path: str | Path) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; rename it to ``path`` if the block succeeds."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=path.suffix)
+    os.close(fd)
+    try:
+        yield Path(tmp)
+        os.replace(tmp, path)
+    finally:
+        Path(tmp).unlink(missing_ok=True)
+
+
+def write_obj(
+    path: str | Path,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    uv: np.ndarray | None = None,
+    face_uv: np.ndarray | None = None,
+    texture: np.ndarray | None = None,
+) -> None:
+    """Write an OBJ (metres). UVs are given in glTF convention (v down) and written in OBJ's
+    (v up). With a texture (H, W, 3) float in [0, 1] or uint8, also writes ``NAME.mtl`` and
+    ``NAME.png`` beside it."""
+    path = Path(path)
+    lines = ["# monoavatar mesh, metres, Y up, facing +Z\n"]
+    if texture is not None:
+        lines.append(f"mtllib {path.stem}.mtl\nusemtl skin\n")
+    lines.extend(f"v {x:.6f} {y:.6f} {z:.6f}\n" for x, y, z in vertices)
+    if uv is not None and face_uv is not None:
+        lines.extend(f"vt {u:.6f} {1.0 - v:.6f}\n" for u, v in uv)
+        for f, t in zip(faces + 1, face_uv + 1, strict=True):
+            lines.append(f"f {f[0]}/{t[0]} {f[1]}/{t[1]} {f[2]}/{t[2]}\n")
+    else:
+        lines.extend(f"f {a} {b} {c}\n" for a, b, c in faces + 1)
+    if texture is not None:
+        tex = texture if texture.dtype == np.uint8 else (np.clip(texture, 0, 1) * 255 + 0.5)
+        with atomic_path(path.with_suffix(".png")) as tmp:
+            Image.fromarray(np.asarray(tex, dtype=np.uint8)).save(tmp, format="PNG")
+        with atomic_path(path.with_suffix(".mtl")) as tmp:
+            tmp.write_text(f"newmtl skin\nKd 1 1 1\nmap_Kd {path.stem}.png\n")
+    with atomic_path(path) as tmp:
+        tmp.write_text("".join(lines))
+
+
+def write_ply(path: str | Path, vertices: np.ndarray, faces: np.ndarray) -> None:
+    """Binary little-endian PLY of a triangle mesh (float32 vertices, metres)."""
+    header = (
+        "ply\nformat binary_little_endian 1.0\ncomment monoavatar, metres\n"
+        f"element vertex {len(vertices)}\nproperty float x\nproperty float y\nproperty float z\n"
+        f"element face {len(faces)}\nproperty list uchar int vertex_indices\nend_header\n"
+    )
+    face_rec = np.empty(len(faces), dtype=[("n", "u1"), ("idx", "<i4", (3,))])
+    face_rec["n"] = 3
+    face_rec["idx"] = faces
+    with atomic_path(path) as tmp, tmp.open("wb") as fh:
+        fh.write(header.encode("ascii"))
+        fh.write(np.asarray(vertices, dtype="<f4").tobytes())
+        fh.write(face_rec.tobytes())
+
+
+def write_mp4(path: str | Path, frames: Sequence[np.ndarray], fps: float = 30.0) -> None:
+    """Encode RGB uint8 frames (H, W, 3), H and W even, as H.264 (MPEG-4 part 2 if H.264 is
+    unavailable)."""
+    import av
+
+    with atomic_path(path) as tmp:
+        with av.open(str(tmp), mode="w", format="mp4") as container:
+            try:
+                stream = container.add_stream("libx264", rate=round(fps))
+            except (av.error.FFmpegError, ValueError):  # pragma: no cover - build dependent
+                stream = container.add_stream("mpeg4", rate=round(fps))
+            stream.height, stream.width = frames[0].shape[:2]
+            stream.pix_fmt = "yuv420p"
+            for image in frames:
+                for packet in stream.encode(av.VideoFrame.from_ndarray(image, format="rgb24")):
+                    container.mux(packet)
+            for packet in stream.encode():
+                container.mux(packet)

@@ -1,0 +1,81 @@
+"""Procedural pose sequences in the fitting skeleton's axis-angle parameters (radians).
+
+Canonical frame: Y up, the body faces +Z, its left is +X. A rotation about +X by a negative
+angle swings a hanging limb forward; about +Z by a positive angle raises the left arm sideways.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from monoavatar.body import BodyModel
+
+KINDS = ("turnaround", "motion", "photo")
+
+
+def _set(pose: np.ndarray, body: BodyModel, joint: str, axis: int, angle: np.ndarray) -> None:
+    pose[:, body.joint_index(joint), axis] += angle
+
+
+def turnaround(body: BodyModel, frames: int, rng: np.random.Generator) -> np.ndarray:
+    """A person in a rough A-pose turning once about the vertical axis (People-Snapshot-like,
+    Sec. B.4.2), with small natural pose variation. Returns (N, J, 3)."""
+    t = np.arange(frames) / max(frames, 1)
+    pose = np.zeros((frames, body.num_joints, 3))
+    start = rng.uniform(-0.2, 0.2)
+    _set(pose, body, "pelvis", 1, start + 2 * np.pi * t)
+    for j in range(1, body.num_joints):  # slow wobble of a few degrees
+        amp = rng.uniform(0.01, 0.05, 3)
+        phase = rng.uniform(0, 2 * np.pi, 3)
+        freq = rng.uniform(0.5, 2.0, 3)
+        pose[:, j] += amp * np.sin(2 * np.pi * freq * t[:, None] + phase)
+    abduct = rng.uniform(-0.1, 0.25)  # arms a little further from or closer to the body
+    _set(pose, body, "shoulder_l", 2, abduct + 0.05 * np.sin(2 * np.pi * t))
+    _set(pose, body, "shoulder_r", 2, -abduct - 0.05 * np.sin(2 * np.pi * t))
+    return pose
+
+
+def free_motion(body: BodyModel, frames: int, rng: np.random.Generator, fps: float = 30.0):
+    """Walking in place, then waving the right arm, then jogging in place, with a slowly
+    varying heading. Returns poses (N, J, 3) and translations (N, 3) in metres."""
+    pose = np.zeros((frames, body.num_joints, 3))
+    transl = np.zeros((frames, 3))
+    time = np.arange(frames) / fps
+    third = np.arange(frames) * 3 // max(frames, 1)
+    _set(pose, body, "pelvis", 1, 0.5 * np.sin(2 * np.pi * time / 8.0) + rng.uniform(-0.3, 0.3))
+    for phase_id, (freq, hip, knee, arm, bounce) in enumerate(
+        [(0.9, 0.35, 0.5, 0.3, 0.01), (0.0, 0.0, 0.0, 0.0, 0.0), (1.6, 0.6, 1.1, 0.6, 0.04)]
+    ):
+        sel = third == phase_id
+        s = np.sin(2 * np.pi * freq * time[sel])
+        c = np.clip(np.sin(2 * np.pi * freq * time[sel]), 0, None)
+        c2 = np.clip(-np.sin(2 * np.pi * freq * time[sel]), 0, None)
+        pose[sel, body.joint_index("hip_l"), 0] += -hip * c
+        pose[sel, body.joint_index("knee_l"), 0] += knee * c
+        pose[sel, body.joint_index("hip_r"), 0] += -hip * c2
+        pose[sel, body.joint_index("knee_r"), 0] += knee * c2
+        pose[sel, body.joint_index("shoulder_l"), 0] += arm * s
+        pose[sel, body.joint_index("shoulder_r"), 0] += -arm * s
+        pose[sel, body.joint_index("elbow_l"), 0] += -0.3 - arm * c
+        pose[sel, body.joint_index("elbow_r"), 0] += -0.3 - arm * c2
+        transl[sel, 1] += bounce * np.abs(s)
+        if phase_id == 1:  # wave: right arm up, forearm swinging
+            wave = np.sin(2 * np.pi * 1.5 * time[sel])
+            pose[sel, body.joint_index("shoulder_r"), 2] += -1.6
+            pose[sel, body.joint_index("elbow_r"), 2] += -0.9 + 0.4 * wave
+    return pose, transl
+
+
+def standing_pose(body: BodyModel, rng: np.random.Generator) -> np.ndarray:
+    """A varied standing pose roughly facing the camera (±35°), for single photos. (J, 3)."""
+    pose = 0.06 * rng.standard_normal((body.num_joints, 3))
+    pose[body.joint_index("pelvis"), 1] = rng.uniform(-0.6, 0.6)
+    for s, sign in (("l", 1.0), ("r", -1.0)):
+        pose[body.joint_index(f"shoulder_{s}"), 2] += sign * rng.uniform(-0.2, 0.9)
+        pose[body.joint_index(f"shoulder_{s}"), 0] += rng.uniform(-0.5, 0.3)
+        pose[body.joint_index(f"elbow_{s}"), 0] += -rng.uniform(0.0, 1.2)
+        pose[body.joint_index(f"hip_{s}"), 2] += sign * rng.uniform(-0.05, 0.15)
+    leg = rng.choice(["l", "r"])
+    pose[body.joint_index(f"hip_{leg}"), 0] += -rng.uniform(0.0, 0.3)
+    pose[body.joint_index(f"knee_{leg}"), 0] += rng.uniform(0.0, 0.4)
+    return pose

@@ -1,0 +1,360 @@
+"""Synthetic ground-truth scenes (``monoavatar synth``): render subjects through sequences and
+write everything a test, benchmark or training run needs, described in ``scene.json``.
+
+Output folder::
+
+    frames/000000.png ...      RGB frames (with the requested noise, blur, JPEG artefacts)
+    video.mp4                  the frames as a video (turnaround, motion)
+    masks/000000.png ...       exact ground-truth person masks (0 / 255)
+    keypoints.npz              keypoints (N, 33, 3): x px, y px, visibility (mediapipe order);
+                               keypoints_3d (N, 33, 3) world metres; observed (N, 33, 3) jittered
+    camera.json                K, R, t, width, height (OpenCV convention, metres)
+    gt/subject_000/canonical.obj (+ .mtl, .png)   clothed canonical mesh with UVs and texture
+    gt/posed/000000.ply        posed ground-truth meshes (every ``posed_every``-th frame)
+    gt/params.npz              shape, poses, translations, displacements, lighting (see scene.json)
+    preview/contact_sheet.png  a grid of frames
+    scene.json                 all of the above with units
+
+Pixel origin: the top-left corner of the top-left pixel.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from PIL import Image
+from tqdm import tqdm
+
+from monoavatar.body import BodyModel, lbs, load_body_model
+from monoavatar.camera import PinholeCamera
+from monoavatar.io.export_mesh import write_mp4, write_obj, write_ply
+from monoavatar.render import rasterize, render_textured, sample_sh_lighting
+from monoavatar.synth.motion import KINDS, free_motion, standing_pose, turnaround
+from monoavatar.synth.subjects import CLOTHING, Subject, build_subject, sample_subject
+
+NOISE_LEVELS: dict[str, dict[str, float]] = {
+    "none": {"sigma": 0.0, "jpeg": 0, "blur": 0.0, "keypoint_jitter": 0.0},
+    "low": {"sigma": 0.01, "jpeg": 92, "blur": 0.0, "keypoint_jitter": 2.0},
+    "medium": {"sigma": 0.02, "jpeg": 80, "blur": 0.8, "keypoint_jitter": 4.0},
+    "high": {"sigma": 0.04, "jpeg": 60, "blur": 1.5, "keypoint_jitter": 8.0},
+}
+BACKGROUNDS = ("plain", "gradient", "clutter")
+
+
+class SynthError(ValueError):
+    """Invalid synthesis settings or output folder."""
+
+
+@dataclass
+class SynthConfig:
+    """Settings of a synthetic scene; every field is a CLI option of ``monoavatar synth``."""
+
+    kind: str = "turnaround"
+    frames: int = 120
+    seed: int = 0
+    width: int = 540
+    height: int = 540
+    clothing: str | None = None  # None: drawn from the seed
+    noise: str = "low"
+    background: str | None = None  # None: drawn from the seed
+    texture_size: int = 1024
+    fps: float = 30.0
+    posed_every: int = 10
+
+    def validate(self) -> None:
+        if self.kind not in KINDS:
+            raise SynthError(f"unknown sequence kind {self.kind!r}; choose from {KINDS}")
+        if self.frames < 1:
+            raise SynthError(f"frames must be at least 1, got {self.frames}")
+        if self.width < 16 or self.height < 16 or self.width % 2 or self.height % 2:
+            raise SynthError(f"size must be even and at least 16, got {self.width}x{self.height}")
+        if self.clothing is not None and self.clothing not in CLOTHING:
+            raise SynthError(f"unknown clothing {self.clothing!r}; choose from {CLOTHING}")
+        if self.noise not in NOISE_LEVELS:
+            raise SynthError(
+                f"unknown noise level {self.noise!r}; choose from {list(NOISE_LEVELS)}"
+            )
+        if self.background is not None and self.background not in BACKGROUNDS:
+            raise SynthError(f"unknown background {self.background!r}; choose from {BACKGROUNDS}")
+        if self.posed_every < 1:
+            raise SynthError("posed_every must be at least 1")
+
+
+@dataclass
+class SceneSummary:
+    """What :func:`generate` wrote."""
+
+    folder: Path
+    frames: int
+    seconds: float
+    subjects: int
+
+
+def make_camera(rng: np.random.Generator, width: int, height: int) -> PinholeCamera:
+    """A fixed camera 2.2–3.0 m in front of the person (who faces +Z at the origin), at about
+    chest height, with a focal length that keeps a 2.1 m tall person in frame."""
+    distance = rng.uniform(2.2, 3.0)
+    focal = height * distance / 2.3
+    eye = np.array([rng.uniform(-0.1, 0.1), rng.uniform(0.0, 0.25), distance])
+    return PinholeCamera.look_at(eye, np.array([0.0, -0.05, 0.0]), np.array([0, 1.0, 0]),
+                                 focal, width, height)  # fmt: skip
+
+
+def make_background(kind: str, rng: np.random.Generator, width: int, height: int) -> np.ndarray:
+    """(H, W, 3) float background: a plain colour, a vertical gradient, or blurred clutter."""
+    import cv2
+
+    base = rng.uniform(0.2, 0.9, 3)
+    if kind == "plain":
+        return np.broadcast_to(base, (height, width, 3)).astype(np.float32).copy()
+    ramp = np.linspace(0, 1, height)[:, None, None]
+    image = (base * (1 - ramp) + rng.uniform(0.1, 0.9, 3) * ramp) * np.ones((1, width, 1))
+    if kind == "clutter":
+        for _ in range(25):
+            x0, y0 = rng.integers(0, width), rng.integers(0, height)
+            w, h = rng.integers(width // 20, width // 4), rng.integers(height // 20, height // 3)
+            colour = tuple(float(c) for c in rng.uniform(0, 1, 3))
+            if rng.random() < 0.5:
+                cv2.rectangle(image, (int(x0), int(y0)), (int(x0 + w), int(y0 + h)), colour, -1)
+            else:
+                cv2.ellipse(image, (int(x0), int(y0)), (int(w // 2), int(h // 2)), 0, 0, 360,
+                            colour, -1)  # fmt: skip
+        image = np.asarray(cv2.GaussianBlur(image, (0, 0), 2.0))
+    return np.asarray(image, dtype=np.float32)
+
+
+def degrade(image: np.ndarray, noise: dict[str, float], rng: np.random.Generator) -> np.ndarray:
+    """float (H, W, 3) in [0, 1] → uint8 with blur, sensor noise and JPEG compression."""
+    import cv2
+
+    if noise["blur"] > 0:
+        image = np.asarray(cv2.GaussianBlur(image, (0, 0), noise["blur"]), dtype=np.float32)
+    if noise["sigma"] > 0:
+        image = image + rng.normal(0, noise["sigma"], image.shape).astype(np.float32)
+    out = (np.clip(image, 0, 1) * 255 + 0.5).astype(np.uint8)
+    if noise["jpeg"] > 0:
+        quality = [cv2.IMWRITE_JPEG_QUALITY, int(noise["jpeg"])]
+        _, buf = cv2.imencode(".jpg", np.ascontiguousarray(out[..., ::-1]), quality)
+        out = np.asarray(cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1], dtype=np.uint8).copy()
+    return out
+
+
+def render_frame(
+    body: BodyModel,
+    subject: Subject,
+    pose: np.ndarray,
+    translation: np.ndarray,
+    camera: PinholeCamera,
+    sh: np.ndarray,
+    background: np.ndarray,
+) -> dict[str, np.ndarray]:
+    """Render one ground-truth frame. Returns float image (H, W, 3), mask (H, W) bool, posed fine
+    vertices (V_f, 3), keypoints_3d (33, 3) and keypoints (33, 3) = x, y, visibility."""
+    with torch.no_grad():
+        out = body(
+            shape=subject.shape,
+            pose=torch.as_tensor(pose, dtype=body.dtype)[None],
+            translation=torch.as_tensor(translation, dtype=body.dtype)[None],
+        )
+        sub = subject.subdivision
+        posed = lbs.skin(subject.rest_vertices[None], sub.weights, out.transforms)[0]
+        kp3d = body.keypoints(out.vertices)[0]
+    frags = rasterize(posed, sub.faces, camera)
+    image = render_textured(posed, sub.faces, frags, sub.uv, sub.face_uv,
+                            torch.as_tensor(subject.texture), sh=sh,
+                            background=torch.tensor(background))  # fmt: skip
+    mask = (frags.face_id >= 0).numpy()
+    px, depth = camera.project(kp3d.double())
+    px_np, depth_np = px.numpy(), depth.numpy()
+    zbuf = frags.depth.numpy()
+    cols = np.clip(np.floor(px_np[:, 0]).astype(int), 0, camera.width - 1)
+    rows = np.clip(np.floor(px_np[:, 1]).astype(int), 0, camera.height - 1)
+    inside = (px_np[:, 0] >= 0) & (px_np[:, 0] < camera.width)
+    inside &= (px_np[:, 1] >= 0) & (px_np[:, 1] < camera.height)
+    # visible: in the image and no more than 8 cm behind the visible surface (landmarks such
+    # as elbows lie inside the limb; one occluded by the torso lies 15+ cm behind it)
+    visible = inside & (depth_np - zbuf[rows, cols] < 0.08)
+    keypoints = np.concatenate([px_np, visible[:, None].astype(np.float64)], axis=1)
+    valid = body.keypoint_valid.numpy()
+    keypoints[~valid] = 0.0
+    return {
+        "image": np.clip(image.numpy(), 0, 1).astype(np.float32),
+        "mask": mask,
+        "posed": posed.numpy(),
+        "keypoints_3d": kp3d.numpy(),
+        "keypoints": keypoints,
+    }
+
+
+def contact_sheet(images: list[np.ndarray], columns: int = 6, width: int = 180) -> np.ndarray:
+    """A grid of evenly chosen frames, each resized to ``width`` pixels wide."""
+    picks = np.linspace(0, len(images) - 1, min(len(images), columns * 2)).round().astype(int)
+    tiles = []
+    for i in picks:
+        im = Image.fromarray(images[i])
+        h = round(im.height * width / im.width)
+        tiles.append(np.asarray(im.resize((width, h), Image.Resampling.BILINEAR)))
+    rows = [np.concatenate(tiles[r : r + columns], axis=1) for r in range(0, len(tiles), columns)]
+    if len(rows) > 1 and rows[-1].shape[1] < rows[0].shape[1]:
+        pad = np.full((rows[-1].shape[0], rows[0].shape[1] - rows[-1].shape[1], 3), 255, np.uint8)
+        rows[-1] = np.concatenate([rows[-1], pad], axis=1)
+    return np.concatenate(rows, axis=0)
+
+
+def generate(
+    out_dir: str | Path,
+    config: SynthConfig,
+    body: BodyModel | None = None,
+    progress: bool = True,
+) -> SceneSummary:
+    """Generate a scene into ``out_dir`` (created; it must not exist or be empty). The folder
+    is assembled under a temporary name and renamed at the end, so a failure leaves nothing
+    half-written. The same config (seed included) gives the same scene."""
+    config.validate()
+    out_dir = Path(out_dir)
+    if out_dir.exists() and (not out_dir.is_dir() or any(out_dir.iterdir())):
+        raise SynthError(f"output folder {out_dir} exists and is not empty")
+    parent = out_dir.resolve().parent
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        work = Path(tempfile.mkdtemp(dir=parent, prefix=f".{out_dir.name}.partial-"))
+    except OSError as exc:
+        raise SynthError(f"cannot write to {parent}: {exc}") from exc
+    try:
+        summary = _generate_into(work, config, body, progress)
+        if out_dir.exists():
+            out_dir.rmdir()
+        os.replace(work, out_dir)
+    except BaseException:
+        shutil.rmtree(work, ignore_errors=True)
+        raise
+    summary.folder = out_dir
+    return summary
+
+
+def _generate_into(
+    work: Path, config: SynthConfig, body: BodyModel | None, progress: bool
+) -> SceneSummary:
+    start = time.perf_counter()
+    rng = np.random.default_rng(config.seed)
+    body = body if body is not None else load_body_model("anny-local")
+    noise = NOISE_LEVELS[config.noise]
+    camera = make_camera(rng, config.width, config.height)
+    bg_kind = config.background or str(rng.choice(BACKGROUNDS))
+    background = make_background(bg_kind, rng, config.width, config.height)
+    n = config.frames
+    translations = np.zeros((n, 3))
+    if config.kind == "turnaround":
+        poses = turnaround(body, n, rng)
+    elif config.kind == "motion":
+        poses, translations = free_motion(body, n, rng, config.fps)
+    else:
+        poses = np.stack([standing_pose(body, rng) for _ in range(n)])
+    subject_of_frame = np.arange(n) if config.kind == "photo" else np.zeros(n, dtype=int)
+    num_subjects = int(subject_of_frame.max()) + 1
+    specs = [sample_subject(rng, body, config.clothing) for _ in range(num_subjects)]
+    lighting = sample_sh_lighting(rng, num_subjects if config.kind == "photo" else 1).sh
+    sh_of_frame = lighting[subject_of_frame if config.kind == "photo" else np.zeros(n, int)]
+
+    for sub in ("frames", "masks", "preview", "gt/posed"):
+        (work / sub).mkdir(parents=True, exist_ok=True)
+    subjects: list[Subject] = []
+    for s, spec in enumerate(specs):
+        subject = build_subject(body, spec, config.texture_size)
+        subjects.append(subject)
+        d = work / "gt" / f"subject_{s:03d}"
+        d.mkdir(parents=True)
+        write_obj(d / "canonical.obj", subject.rest_vertices.numpy(),
+                  subject.subdivision.faces.numpy(), subject.subdivision.uv.numpy(),
+                  subject.subdivision.face_uv.numpy(), subject.texture)  # fmt: skip
+
+    images, keypoints, keypoints_3d = [], [], []
+    frame_rng = np.random.default_rng(config.seed + 1)
+    bar = tqdm(range(n), desc=f"synth {config.kind}", unit="frame", disable=not progress)
+    for i in bar:
+        subject = subjects[subject_of_frame[i]]
+        if config.kind == "photo" and i > 0:
+            background = make_background(bg_kind, rng, config.width, config.height)
+        r = render_frame(body, subject, poses[i], translations[i], camera, sh_of_frame[i],
+                         background)  # fmt: skip
+        image = degrade(r["image"], noise, frame_rng)
+        Image.fromarray(image).save(work / "frames" / f"{i:06d}.png")
+        Image.fromarray((r["mask"] * 255).astype(np.uint8)).save(work / "masks" / f"{i:06d}.png")
+        if i % config.posed_every == 0:
+            write_ply(work / "gt" / "posed" / f"{i:06d}.ply", r["posed"],
+                      subject.subdivision.faces.numpy())  # fmt: skip
+        images.append(image)
+        keypoints.append(r["keypoints"])
+        keypoints_3d.append(r["keypoints_3d"])
+    kp = np.stack(keypoints)
+    observed = kp.copy()
+    observed[..., :2] += frame_rng.normal(0, noise["keypoint_jitter"], observed[..., :2].shape)
+    observed[kp[..., 2] == 0] = 0.0
+    np.savez(work / "keypoints.npz", keypoints=kp, keypoints_3d=np.stack(keypoints_3d),
+             observed=observed)  # fmt: skip
+    camera.save_json(work / "camera.json")
+    if config.kind != "photo":
+        write_mp4(work / "video.mp4", images, config.fps)
+    Image.fromarray(contact_sheet(images)).save(work / "preview" / "contact_sheet.png")
+    np.savez(
+        work / "gt" / "params.npz",
+        body_model=np.array(body.identity),
+        shapes=np.stack([s.shape[0].numpy() for s in subjects]),
+        subject_of_frame=subject_of_frame,
+        poses=poses,
+        translations=translations,
+        displacements=np.stack([s.displacement for s in subjects]),
+        garments=np.stack([s.garment for s in subjects]),
+        sh=sh_of_frame,
+    )
+    seconds = time.perf_counter() - start
+    scene = {
+        "format": "monoavatar-synth-1",
+        "config": asdict(config),
+        "background": bg_kind,
+        "noise": noise,
+        "units": {"length": "metre", "angle": "radian (axis-angle)", "image": "pixel"},
+        "conventions": {
+            "camera": "OpenCV: x right, y down, z forward; x_cam = R x_world + t",
+            "pixels": "origin at the top-left corner of the top-left pixel",
+            "body": "canonical frame Y up, facing +Z; left = +X",
+            "uv": "glTF: origin top-left, v down (OBJ files store v up)",
+        },
+        "body_model": body.identity,
+        "joint_names": list(body.joint_names),
+        "camera": camera.to_dict(),
+        "subjects": [
+            {
+                "index": s,
+                "clothing": spec.clothing,
+                "pattern": spec.pattern,
+                "hair_volume_m": spec.hair_volume,
+                "height_m": float(np.ptp(subjects[s].rest_vertices[:, 1].numpy())),
+            }
+            for s, spec in enumerate(specs)
+        ],  # fmt: skip
+        "files": {
+            "frames": "frames/%06d.png, RGB uint8",
+            "video": "video.mp4" if config.kind != "photo" else None,
+            "masks": "masks/%06d.png, exact ground truth, 255 = person",
+            "keypoints": "keypoints.npz: keypoints (N,33,3) x px, y px, visibility; "
+            "keypoints_3d (N,33,3) world metres; observed (N,33,3) with jitter",
+            "camera": "camera.json",
+            "canonical_mesh": "gt/subject_%03d/canonical.obj (+ .mtl, .png), metres",
+            "posed_meshes": f"gt/posed/%06d.ply every {config.posed_every} frames, metres",
+            "params": "gt/params.npz: shapes (S_subj, S), poses (N, J, 3), translations (N, 3), "
+            "displacements (S_subj, V_f) metres along canonical normals, garments (S_subj, V_f), "
+            "sh (N, 3, 9), subject_of_frame (N,)",
+        },
+        "seconds": round(seconds, 2),
+    }
+    (work / "scene.json").write_text(json.dumps(scene, indent=2))
+    return SceneSummary(folder=work, frames=n, seconds=seconds, subjects=num_subjects)

@@ -1,0 +1,156 @@
+"""Synthetic scenes: determinism, exact masks, keypoints on the right body parts, files, errors."""
+
+import json
+
+import av
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+from monoavatar.body import MEDIAPIPE_LANDMARKS
+from monoavatar.camera import PinholeCamera
+from monoavatar.cli import main
+from monoavatar.render import rasterize
+from monoavatar.synth import scene as scene_mod
+from monoavatar.synth.scene import SynthConfig, SynthError, generate
+
+SMALL = {"width": 160, "height": 160, "texture_size": 128, "posed_every": 1}
+
+
+@pytest.fixture(scope="module")
+def turnaround(anny_local, tmp_path_factory):
+    out = tmp_path_factory.mktemp("scenes") / "turn"
+    generate(out, SynthConfig(kind="turnaround", frames=4, seed=3, noise="none", **SMALL),
+             body=anny_local, progress=False)  # fmt: skip
+    return out
+
+
+def test_same_seed_same_scene_other_seed_differs(anny_local, turnaround, tmp_path):
+    again = tmp_path / "again"
+    generate(again, SynthConfig(kind="turnaround", frames=4, seed=3, noise="none", **SMALL),
+             body=anny_local, progress=False)  # fmt: skip
+    a = np.asarray(Image.open(turnaround / "frames" / "000002.png"))
+    b = np.asarray(Image.open(again / "frames" / "000002.png"))
+    assert np.array_equal(a, b)
+    other = tmp_path / "other"
+    generate(other, SynthConfig(kind="turnaround", frames=1, seed=4, noise="none", **SMALL),
+             body=anny_local, progress=False)  # fmt: skip
+    c = np.asarray(Image.open(other / "frames" / "000000.png"))
+    assert not np.array_equal(np.asarray(Image.open(turnaround / "frames" / "000000.png")), c)
+
+
+def test_mask_is_the_projection_of_the_posed_ground_truth_mesh(turnaround):
+    import trimesh
+
+    cam = PinholeCamera.load_json(turnaround / "camera.json")
+    for i in (0, 2):
+        mesh = trimesh.load(turnaround / "gt" / "posed" / f"{i:06d}.ply", process=False)
+        ys, xs = np.mgrid[0 : cam.height, 0 : cam.width]
+        px = torch.tensor(np.stack([xs + 0.5, ys + 0.5], -1).reshape(-1, 2), dtype=torch.float64)
+        o, d = cam.pixel_rays(px)
+        hit = mesh.ray.intersects_any(o.numpy(), d.numpy()).reshape(cam.height, cam.width)
+        mask = np.asarray(Image.open(turnaround / "masks" / f"{i:06d}.png")) > 127
+        assert mask.sum() > 0.05 * mask.size
+        assert (hit == mask).mean() >= 0.995
+
+
+EXPECTED_PARTS = {
+    "nose": {"head", "neck"},
+    "left_shoulder": {"collar_l", "shoulder_l", "spine3"},
+    "right_shoulder": {"collar_r", "shoulder_r", "spine3"},
+    "left_elbow": {"shoulder_l", "elbow_l"},
+    "right_elbow": {"shoulder_r", "elbow_r"},
+    "left_wrist": {"elbow_l", "wrist_l"},
+    "right_wrist": {"elbow_r", "wrist_r"},
+    "left_knee": {"hip_l", "knee_l"},
+    "right_knee": {"hip_r", "knee_r"},
+    "left_ankle": {"knee_l", "ankle_l"},
+    "right_ankle": {"knee_r", "ankle_r"},
+}
+
+
+def test_keypoints_project_onto_the_right_body_parts(anny_local, turnaround):
+    """Re-render the posed mesh's dominant-joint labels and look them up at the keypoints."""
+    import trimesh
+
+    from monoavatar.body.subdivide import subdivide
+
+    sub = subdivide(anny_local.faces, anny_local.uv, anny_local.face_uv, anny_local.skin_weights)
+    parts = sub.weights.argmax(1).numpy()
+    cam = PinholeCamera.load_json(turnaround / "camera.json")
+    kp = np.load(turnaround / "keypoints.npz")["keypoints"]
+    checked = 0
+    for i in range(4):
+        mesh = trimesh.load(turnaround / "gt" / "posed" / f"{i:06d}.ply", process=False)
+        frags = rasterize(np.asarray(mesh.vertices), np.asarray(mesh.faces), cam)
+        for name, allowed in EXPECTED_PARTS.items():
+            x, y, vis = kp[i, MEDIAPIPE_LANDMARKS.index(name)]
+            if vis < 0.5:
+                continue
+            r, c = int(y), int(x)
+            window = frags.face_id[max(r - 1, 0) : r + 2, max(c - 1, 0) : c + 2].reshape(-1)
+            window = window[window >= 0].numpy()
+            assert len(window), f"{name} of frame {i} is off the body"
+            labels = {anny_local.joint_names[p] for p in parts[sub.faces.numpy()[window]].ravel()}
+            assert labels & allowed, f"{name} of frame {i} lands on {labels}"
+            checked += 1
+    assert checked >= 20
+
+
+def test_files_and_description(turnaround):
+    scene = json.loads((turnaround / "scene.json").read_text())
+    assert scene["units"]["length"] == "metre"
+    assert scene["config"]["frames"] == 4
+    kp = np.load(turnaround / "keypoints.npz")
+    assert kp["keypoints"].shape == (4, 33, 3) and kp["keypoints_3d"].shape == (4, 33, 3)
+    assert (turnaround / "gt" / "subject_000" / "canonical.obj").is_file()
+    assert (turnaround / "gt" / "subject_000" / "canonical.png").is_file()
+    params = np.load(turnaround / "gt" / "params.npz")
+    assert params["poses"].shape == (4, 20, 3)
+    with av.open(str(turnaround / "video.mp4")) as container:
+        assert sum(1 for _ in container.decode(video=0)) == 4
+    sheet = np.asarray(Image.open(turnaround / "preview" / "contact_sheet.png"))
+    assert sheet.ndim == 3 and sheet.std() > 10
+    # the person turns: frame 2 (half a turn) shows the back, the nose is hidden
+    assert kp["keypoints"][0, 0, 2] == 1 and kp["keypoints"][2, 0, 2] == 0
+
+
+def test_clothing_is_real_displacement(anny_local, turnaround):
+    params = np.load(turnaround / "gt" / "params.npz")
+    disp = params["displacements"][0]
+    assert disp.max() > 0.003  # at least hair or garments stand off the skin
+    assert params["shapes"].shape[1] == anny_local.shape_dim
+    assert np.count_nonzero(params["shapes"][0, 6:]) > 10  # local changes beyond the phenotypes
+
+
+def test_failure_leaves_nothing_behind(anny_local, tmp_path, monkeypatch):
+    def boom(*args, **kwargs):
+        raise RuntimeError("renderer exploded")
+
+    monkeypatch.setattr(scene_mod, "render_frame", boom)
+    with pytest.raises(RuntimeError):
+        generate(tmp_path / "x", SynthConfig(frames=2, **SMALL), body=anny_local, progress=False)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_bad_settings_and_folders(tmp_path):
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "a.txt").write_text("x")
+    with pytest.raises(SynthError, match="not empty"):
+        generate(tmp_path / "full", SynthConfig(frames=1, **SMALL))
+    with pytest.raises(SynthError, match="unknown sequence kind"):
+        SynthConfig(kind="dance").validate()
+    with pytest.raises(SynthError, match="even"):
+        SynthConfig(width=101).validate()
+    assert main(["synth", "turnaround", "-o", str(tmp_path / "full"), "--frames", "1"]) == 2
+
+
+def test_cli_photo_and_motion(tmp_path, capsys):
+    args = ["--size", "96", "96", "--texture-size", "64", "--frames", "2", "--seed", "1"]
+    assert main(["synth", "photo", "-o", str(tmp_path / "p"), *args]) == 0
+    assert main(["synth", "motion", "-o", str(tmp_path / "m"), *args]) == 0
+    assert "contact_sheet.png" in capsys.readouterr().out
+    scene = json.loads((tmp_path / "p" / "scene.json").read_text())
+    assert len(scene["subjects"]) == 2  # one person per photo
+    assert not (tmp_path / "p" / "video.mp4").exists()
