@@ -1,1 +1,45 @@
-"""eval stage."""
+"""eval stage: metrics, independent of the reconstruction code.
+
+Surface error (the dissertation's bi-directional vertex-to-surface distance, after aligning
+pose and scale), joint errors (MPJPE, PA-MPJPE), silhouette IoU, PSNR and error heat maps.
+Depends on numpy and scipy only; imports nothing from other monoavatar subpackages, so that a
+bug in the reconstruction code cannot hide in a helper shared with its own evaluation.
+Units: metres in; surface errors in metres (``.mean_mm`` for millimetres), joint errors in mm.
+"""
+
+from monoavatar.eval.alignment import SimilarityTransform, align_similarity
+from monoavatar.eval.heatmap import error_to_rgb, write_heatmap_ply
+from monoavatar.eval.image import psnr, silhouette_iou
+from monoavatar.eval.joints import joint_errors, mpjpe, pa_mpjpe
+from monoavatar.eval.surface import (
+    AlignedSurfaceError,
+    ClosestPoints,
+    IcpResult,
+    SurfaceError,
+    align_icp,
+    bidirectional_surface_error,
+    closest_points_on_mesh,
+    point_to_surface_distance,
+    surface_error_after_alignment,
+)
+
+__all__ = [
+    "AlignedSurfaceError",
+    "ClosestPoints",
+    "IcpResult",
+    "SimilarityTransform",
+    "SurfaceError",
+    "align_icp",
+    "align_similarity",
+    "bidirectional_surface_error",
+    "closest_points_on_mesh",
+    "error_to_rgb",
+    "joint_errors",
+    "mpjpe",
+    "pa_mpjpe",
+    "point_to_surface_distance",
+    "psnr",
+    "silhouette_iou",
+    "surface_error_after_alignment",
+    "write_heatmap_ply",
+]
