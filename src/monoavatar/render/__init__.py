@@ -1,1 +1,57 @@
-"""render stage."""
+"""CPU rendering: rasterisation, attribute interpolation, SH shading and convenience renders.
+
+Deferred, OpenDR-style: :func:`rasterize` fixes visibility in :class:`Fragments` (face ids,
+perspective-correct barycentrics, depth); :func:`interpolate` and the ``render_*`` functions
+compute per-pixel values from them, differentiably in the attribute values.
+
+Conventions: OpenCV pinhole cameras (:class:`monoavatar.camera.PinholeCamera`), pixel centres
+at (col + 0.5, row + 0.5), metres, glTF UVs ((0, 0) = top-left of the texture, v down).
+"""
+
+from monoavatar.render.interpolate import interpolate, interpolate_masked, scatter_masked
+from monoavatar.render.raster import Fragments, RasterSettings, rasterize
+from monoavatar.render.renders import (
+    render_depth,
+    render_face_labels,
+    render_normals,
+    render_silhouette,
+    render_textured,
+    render_uv,
+    render_vertex_labels,
+    sample_texture,
+    vertex_normals,
+)
+from monoavatar.render.shading import (
+    SH_BAND_FACTORS,
+    SampledLighting,
+    directional_light_sh,
+    sample_sh_lighting,
+    sh_basis,
+    sh_irradiance,
+    sh_shading,
+)
+
+__all__ = [
+    "SH_BAND_FACTORS",
+    "Fragments",
+    "RasterSettings",
+    "SampledLighting",
+    "directional_light_sh",
+    "interpolate",
+    "interpolate_masked",
+    "rasterize",
+    "render_depth",
+    "render_face_labels",
+    "render_normals",
+    "render_silhouette",
+    "render_textured",
+    "render_uv",
+    "render_vertex_labels",
+    "sample_sh_lighting",
+    "sample_texture",
+    "scatter_masked",
+    "sh_basis",
+    "sh_irradiance",
+    "sh_shading",
+    "vertex_normals",
+]
