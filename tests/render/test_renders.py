@@ -200,3 +200,20 @@ def test_invalid_input() -> None:
         render_vertex_labels(np.ones(4), f, frags)
     with pytest.raises(ValueError, match="uv"):
         sample_texture(torch.zeros(2, 2, 3), torch.zeros(5, 3))
+
+
+def test_render_textured_leaves_the_background_untouched():
+    """A full-size background tensor is the caller's: rendering twice must not accumulate."""
+    from monoavatar.camera import PinholeCamera
+    from monoavatar.render import rasterize, render_textured
+
+    cam = PinholeCamera.from_focal(50.0, 32, 32)
+    vertices = torch.tensor([[-0.5, -0.5, 2.0], [0.5, -0.5, 2.0], [0.0, 0.5, 2.0]])
+    faces = torch.tensor([[0, 1, 2]])
+    frags = rasterize(vertices, faces, cam)
+    uv = torch.tensor([[0.0, 0.0], [1.0, 0.0], [0.5, 1.0]])
+    background = torch.zeros(32, 32, 3)
+    image = render_textured(vertices, faces, frags, uv, faces, torch.ones(4, 4, 3),
+                            background=background)  # fmt: skip
+    assert image.sum() > 0
+    assert background.abs().sum() == 0

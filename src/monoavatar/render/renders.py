@@ -275,6 +275,6 @@ def render_textured(
         normals = _masked_normals(vertices, faces, fragments, None).to(tex.dtype)
         sh_t = torch.as_tensor(sh, dtype=tex.dtype, device=tex.device)
         colour = colour * sh_shading(normals, sh_t).clamp_min(0.0)
-    image = bg.expand(height, width, 3).contiguous()
+    image = bg.expand(height, width, 3).clone()  # never write into the caller's background
     image[fragments.face_id >= 0] = colour
     return image

@@ -170,7 +170,7 @@ def render_frame(
     frags = rasterize(posed, sub.faces, camera)
     image = render_textured(posed, sub.faces, frags, sub.uv, sub.face_uv,
                             torch.as_tensor(subject.texture), sh=sh,
-                            background=torch.tensor(background))  # fmt: skip
+                            background=torch.as_tensor(background))  # fmt: skip
     mask = (frags.face_id >= 0).numpy()
     px, depth = camera.project(kp3d.double())
     px_np, depth_np = px.numpy(), depth.numpy()
