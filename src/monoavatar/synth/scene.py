@@ -98,11 +98,14 @@ class SceneSummary:
     subjects: int
 
 
-def make_camera(rng: np.random.Generator, width: int, height: int) -> PinholeCamera:
+def make_camera(
+    rng: np.random.Generator, width: int, height: int, reach: float = 1.15
+) -> PinholeCamera:
     """A fixed camera 2.2–3.0 m in front of the person (who faces +Z at the origin), at about
-    chest height, with a focal length that keeps a 2.1 m tall person in frame."""
+    chest height, with a focal length that keeps everything within ``reach`` metres of the
+    origin (vertically) inside the image with a margin."""
     distance = rng.uniform(2.2, 3.0)
-    focal = height * distance / 2.3
+    focal = 0.44 * height * (distance - 0.4) / reach
     eye = np.array([rng.uniform(-0.1, 0.1), rng.uniform(0.0, 0.25), distance])
     return PinholeCamera.look_at(eye, np.array([0.0, -0.05, 0.0]), np.array([0, 1.0, 0]),
                                  focal, width, height)  # fmt: skip
@@ -247,7 +250,7 @@ def _generate_into(
     rng = np.random.default_rng(config.seed)
     body = body if body is not None else load_body_model("anny-local")
     noise = NOISE_LEVELS[config.noise]
-    camera = make_camera(rng, config.width, config.height)
+    camera_rng = np.random.default_rng([config.seed, 2])
     bg_kind = config.background or str(rng.choice(BACKGROUNDS))
     background = make_background(bg_kind, rng, config.width, config.height)
     n = config.frames
@@ -266,10 +269,11 @@ def _generate_into(
 
     for sub in ("frames", "masks", "preview", "gt/posed"):
         (work / sub).mkdir(parents=True, exist_ok=True)
-    subjects: list[Subject] = []
-    for s, spec in enumerate(specs):
-        subject = build_subject(body, spec, config.texture_size)
-        subjects.append(subject)
+    subjects = [build_subject(body, spec, config.texture_size) for spec in specs]
+    # frame the tallest subject with a raised arm (≈ 0.35 m above the head) and the jump
+    reach = max(float(s.rest_vertices[:, 1].abs().max()) for s in subjects) + 0.35
+    camera = make_camera(camera_rng, config.width, config.height, reach + translations[:, 1].max())
+    for s, subject in enumerate(subjects):
         d = work / "gt" / f"subject_{s:03d}"
         d.mkdir(parents=True)
         write_obj(d / "canonical.obj", subject.rest_vertices.numpy(),
