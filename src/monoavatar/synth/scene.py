@@ -270,8 +270,10 @@ def _generate_into(
     for sub in ("frames", "masks", "preview", "gt/posed"):
         (work / sub).mkdir(parents=True, exist_ok=True)
     subjects = [build_subject(body, spec, config.texture_size) for spec in specs]
-    # frame the tallest subject with a raised arm (≈ 0.35 m above the head) and the jump
-    reach = max(float(s.rest_vertices[:, 1].abs().max()) for s in subjects) + 0.35
+    # frame the tallest subject, with room for a raised arm (≈ 0.35 m above the head) where
+    # the sequence has one, and for the jump
+    margin = 0.08 if config.kind == "turnaround" else 0.35
+    reach = max(float(s.rest_vertices[:, 1].abs().max()) for s in subjects) + margin
     camera = make_camera(camera_rng, config.width, config.height, reach + translations[:, 1].max())
     for s, subject in enumerate(subjects):
         d = work / "gt" / f"subject_{s:03d}"
