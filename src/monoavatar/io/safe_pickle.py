@@ -1,0 +1,83 @@
+"""A restricted unpickler for data files users already have (People-Snapshot ``camera.pkl``).
+
+``pickle.load`` on a file from elsewhere can run arbitrary code: a pickle names callables that
+the loader imports and calls. :func:`safe_load` allows only what a pickled dict of numbers,
+strings and numpy arrays needs (numpy's array and scalar reconstruction, ``dtype``) and refuses
+everything else with :class:`UnsafePickleError` before anything is called. Files written by
+Python 2 (as the original research code did) are read with ``encoding="latin1"``, which numpy
+needs for their array buffers.
+"""
+
+from __future__ import annotations
+
+import pickle
+from pathlib import Path
+from typing import Any, BinaryIO
+
+import numpy as np
+
+from monoavatar.io.errors import InputFormatError, InputNotFoundError, UnsafePickleError
+
+
+def _allowed_globals() -> dict[tuple[str, str], Any]:
+    import builtins
+    import codecs
+    import importlib
+
+    multiarray: Any = importlib.import_module("numpy.core.multiarray")
+
+    allowed: dict[tuple[str, str], Any] = {
+        ("numpy", "ndarray"): np.ndarray,
+        ("numpy", "dtype"): np.dtype,
+        # Python 3 pickles of protocol < 3 store bytes as latin-1 text re-encoded by this.
+        ("_codecs", "encode"): codecs.encode,
+    }
+    numeric: Any = importlib.import_module("numpy.core.numeric")
+    for prefix in ("numpy.core", "numpy._core"):  # numpy 1.x and 2.x
+        allowed[(f"{prefix}.multiarray", "_reconstruct")] = multiarray._reconstruct
+        allowed[(f"{prefix}.multiarray", "scalar")] = multiarray.scalar
+        allowed[(f"{prefix}.numeric", "_frombuffer")] = numeric._frombuffer  # protocol 5
+    for name in ("set", "frozenset", "complex", "slice"):
+        for module in ("builtins", "__builtin__"):  # Python 3 and Python 2 names
+            allowed[(module, name)] = getattr(builtins, name)
+    return allowed
+
+
+_ALLOWED = _allowed_globals()
+
+
+class _RestrictedUnpickler(pickle.Unpickler):
+    def __init__(self, file: BinaryIO, path: Path) -> None:
+        super().__init__(file, encoding="latin1")
+        self._path = path
+
+    def find_class(self, module: str, name: str) -> Any:
+        allowed = _ALLOWED.get((module, name))
+        if allowed is None:
+            raise UnsafePickleError(
+                self._path,
+                f"refusing to load '{module}.{name}': only numbers, strings, lists, dicts and "
+                "numpy arrays are allowed in this file",
+            )
+        return allowed
+
+
+def safe_load(path: str | Path) -> Any:
+    """Unpickle ``path`` allowing only builtin containers/numbers and numpy arrays.
+
+    Raises:
+        InputNotFoundError: no such file.
+        UnsafePickleError: the pickle names any other class or function.
+        InputFormatError: the file is not a valid pickle.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputNotFoundError(path, "no such file")
+    with path.open("rb") as fh:
+        try:
+            return _RestrictedUnpickler(fh, path).load()
+        except UnsafePickleError:
+            raise
+        except (pickle.UnpicklingError, EOFError, ValueError, TypeError, AttributeError,
+                IndexError, KeyError, UnicodeDecodeError) as exc:
+            raise InputFormatError(path, f"not a valid pickle file ({exc})") from exc

@@ -1,0 +1,164 @@
+"""Detectors built on mediapipe 0.10.x legacy solutions, whose wheels ship the ``.tflite`` models
+(nothing is downloaded: only the models inside the wheel are used, which is why pose runs with
+``model_complexity=1``, the one pose-landmark model the wheel carries).
+
+All run per image (``static_image_mode=True``): results do not depend on frame order, and the
+functions work on any image array. Temporal consistency is added afterwards by the pipeline.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from monoavatar.perception.interfaces import PoseResult
+from monoavatar.perception.landmarks import NUM_BODY_LANDMARKS, NUM_FACE_LANDMARKS
+
+
+def check_image(image: np.ndarray) -> np.ndarray:
+    """Validate an (H, W, 3) uint8 RGB image and return it C-contiguous."""
+    image = np.asarray(image)
+    if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
+        raise ValueError(
+            f"expected an (H, W, 3) uint8 RGB image, got shape {image.shape} dtype {image.dtype}"
+        )
+    if image.shape[0] < 2 or image.shape[1] < 2:
+        raise ValueError(f"image too small: {image.shape[1]}x{image.shape[0]}")
+    return np.ascontiguousarray(image)
+
+
+def _mediapipe() -> Any:
+    import mediapipe  # slow import (≈1 s): only when a mediapipe detector is made
+
+    return mediapipe
+
+
+class _Closing:
+    _solution: Any
+
+    def close(self) -> None:
+        """Release the mediapipe graph."""
+        if self._solution is not None:
+            self._solution.close()
+            self._solution = None
+
+    def __enter__(self) -> Any:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _run(self, image: np.ndarray) -> Any:
+        if self._solution is None:
+            raise RuntimeError(f"{type(self).__name__} is closed")
+        return self._solution.process(check_image(image))
+
+
+class MediaPipePose(_Closing):
+    """Mediapipe Pose (BlazePose full): 33 landmarks with visibility, and a person mask.
+
+    Args:
+        min_detection_confidence: the person detector's score threshold in [0, 1].
+        segmentation: also return mediapipe's person mask.
+    """
+
+    def __init__(self, min_detection_confidence: float = 0.5, segmentation: bool = True) -> None:
+        mp = _mediapipe()
+        self._segmentation = segmentation
+        self._confidence = float(min_detection_confidence)
+        self._solution = mp.solutions.pose.Pose(
+            static_image_mode=True,
+            model_complexity=1,
+            enable_segmentation=segmentation,
+            min_detection_confidence=self._confidence,
+        )
+        self._name = (
+            f"mediapipe-{mp.__version__}-pose-full-c{self._confidence:g}"
+            f"{'-seg' if segmentation else ''}"
+        )
+
+    @property
+    def name(self) -> str:
+        return self._name
+
+    def detect(self, image: np.ndarray) -> PoseResult | None:
+        """image: (H, W, 3) uint8 RGB → 33 landmarks (x px, y px, visibility) and the mask."""
+        result = self._run(image)
+        if result.pose_landmarks is None:
+            return None
+        h, w = image.shape[:2]
+        keypoints = np.array(
+            [[lm.x * w, lm.y * h, lm.visibility] for lm in result.pose_landmarks.landmark],
+            dtype=np.float32,
+        ).reshape(NUM_BODY_LANDMARKS, 3)
+        keypoints[:, 2] = np.clip(keypoints[:, 2], 0.0, 1.0)
+        mask = None
+        if self._segmentation and result.segmentation_mask is not None:
+            mask = np.clip(np.asarray(result.segmentation_mask, dtype=np.float32), 0.0, 1.0)
+        return PoseResult(keypoints=keypoints, segmentation=mask)
+
+
+class MediaPipeSelfieSegmenter(_Closing):
+    """Mediapipe Selfie Segmentation: a mask of every person in the image.
+
+    Args:
+        landscape: use the landscape model (144×256 input) instead of the general one (256×256).
+    """
+
+    def __init__(self, landscape: bool = False) -> None:
+        mp = _mediapipe()
+        self._solution = mp.solutions.selfie_segmentation.SelfieSegmentation(
+            model_selection=1 if landscape else 0
+        )
+        self._name = f"mediapipe-{mp.__version__}-selfie-{'landscape' if landscape else 'general'}"
+
+    @property
+    def name(self) -> str:
+        return self._name
+
+    def segment(self, image: np.ndarray) -> np.ndarray:
+        """image: (H, W, 3) uint8 RGB → (H, W) float32 person probability."""
+        result = self._run(image)
+        return np.clip(np.asarray(result.segmentation_mask, dtype=np.float32), 0.0, 1.0)
+
+
+class MediaPipeFaceMesh(_Closing):
+    """Mediapipe Face Mesh: 468 landmarks per face (confidence 1 for every landmark, as the mesh
+    model gives none per point).
+
+    Faces far from the camera (full-body shots) are small; the pipeline therefore runs this on a
+    crop around the head (:func:`monoavatar.perception.pipeline.detect_face`).
+
+    Args:
+        max_faces: the most faces to return.
+        min_detection_confidence: the face detector's score threshold in [0, 1].
+    """
+
+    def __init__(self, max_faces: int = 4, min_detection_confidence: float = 0.5) -> None:
+        mp = _mediapipe()
+        self._solution = mp.solutions.face_mesh.FaceMesh(
+            static_image_mode=True,
+            max_num_faces=int(max_faces),
+            refine_landmarks=False,
+            min_detection_confidence=float(min_detection_confidence),
+        )
+        self._name = (
+            f"mediapipe-{mp.__version__}-facemesh-n{int(max_faces)}-c{min_detection_confidence:g}"
+        )
+
+    @property
+    def name(self) -> str:
+        return self._name
+
+    def detect(self, image: np.ndarray) -> list[np.ndarray]:
+        """image: (H, W, 3) uint8 RGB → a (468, 3) array (x px, y px, 1) per face."""
+        result = self._run(image)
+        if not result.multi_face_landmarks:
+            return []
+        h, w = image.shape[:2]
+        faces = []
+        for face in result.multi_face_landmarks:
+            pts = np.array([[lm.x * w, lm.y * h, 1.0] for lm in face.landmark], dtype=np.float32)
+            faces.append(pts[:NUM_FACE_LANDMARKS])
+        return faces

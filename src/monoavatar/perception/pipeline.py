@@ -1,0 +1,649 @@
+"""Perception: from frames to ``Observations`` (person masks, body and face landmarks, flow).
+
+Per frame: body landmarks and a person probability map (mediapipe Pose, or Selfie Segmentation),
+then over the sequence: temporal smoothing of the probabilities, thresholding, one person kept
+(the most central and largest; others are reported), small holes filled, optional GrabCut at the
+boundary; face-mesh landmarks on a crop around the head; optionally optical flow between
+consecutive frames. Results are cached on disk (:mod:`monoavatar.perception.cache`).
+
+Every detector sits behind an interface (:mod:`monoavatar.perception.interfaces`); pass your own
+in :class:`Detectors`, or precomputed keypoints / masks / face landmarks in
+:class:`PrecomputedPerception` (OpenPose, People-Snapshot).
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import asdict, dataclass, replace
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from typing import Literal
+
+import cv2
+import numpy as np
+
+from monoavatar.camera import PinholeCamera
+from monoavatar.io.errors import format_indices
+from monoavatar.io.frames import Frames
+from monoavatar.io.intrinsics import default_camera
+from monoavatar.perception import cache as cache_mod
+from monoavatar.perception.errors import MultiplePeopleWarning, NoPersonError, NoPersonWarning
+from monoavatar.perception.flow import (
+    FlowMethod,
+    flow_estimator_name,
+    flow_sequence,
+    make_flow_estimator,
+)
+from monoavatar.perception.interfaces import (
+    FaceDetector,
+    FlowEstimator,
+    PersonSegmenter,
+    PoseDetector,
+    PoseResult,
+)
+from monoavatar.perception.landmarks import NUM_BODY_LANDMARKS, NUM_FACE_LANDMARKS
+from monoavatar.perception.masks import (
+    fill_holes,
+    grabcut_refine,
+    largest_component,
+    person_score,
+    select_person,
+    smooth_frame,
+)
+from monoavatar.perception.observations import Observations, PrecomputedPerception
+
+_VISIBLE = 0.5  # keypoint confidence above which a landmark counts as seen
+
+
+@dataclass(frozen=True)
+class PerceptionSettings:
+    """Options of :func:`perceive`. All are part of the cache key.
+
+    Attributes:
+        segmenter: ``"pose"``: mediapipe Pose's own person mask (one person, tight);
+            ``"selfie"``: mediapipe Selfie Segmentation (every person, looser).
+        mask_threshold: probability above which a pixel is the person, in (0, 1).
+        temporal_sigma: temporal smoothing of the probabilities, standard deviation in source
+            frames (0: none). Frames further apart than 3 sigma are not mixed.
+        max_hole_fraction: holes up to this fraction of the person's area are filled.
+        grabcut: refine the mask boundary with GrabCut (≈0.1-0.3 s per frame).
+        grabcut_band_px: width in pixels of the boundary band GrabCut may change.
+        min_mask_fraction: a mask smaller than this fraction of the image means no person.
+        other_person_fraction: another person counts (and is warned about) when at least
+            this fraction of the subject's area: a mask component, or a person found by
+            ``check_several_people``.
+        check_several_people: after finding a person, hide them and run the pose detector
+            again to find a second one; the more central and larger is kept. Off by default:
+            it doubles the pose detector's time, and mediapipe's pose model readily "finds" a
+            person in leftover clutter (a helmet, a rocket model) once the real one is hidden.
+            Without it, several people are seen only as separate mask components, i.e. with a
+            segmenter that segments everyone (``"selfie"``), or in precomputed OpenPose input;
+            mediapipe's pose solution itself reports one person.
+        face: detect face-mesh landmarks.
+        flow: optical flow between consecutive frames: ``"dis"``, ``"deepflow"`` or None.
+        min_detection_confidence: the detectors' score threshold, in (0, 1).
+        min_person_fraction: fewer frames with a person than this fraction of all frames (and
+            always fewer than one) raises :class:`NoPersonError`.
+    """
+
+    segmenter: Literal["pose", "selfie"] = "pose"
+    mask_threshold: float = 0.5
+    temporal_sigma: float = 1.0
+    max_hole_fraction: float = 0.01
+    grabcut: bool = False
+    grabcut_band_px: int = 8
+    min_mask_fraction: float = 0.002
+    other_person_fraction: float = 0.25
+    check_several_people: bool = False
+    face: bool = True
+    flow: FlowMethod | None = None
+    min_detection_confidence: float = 0.5
+    min_person_fraction: float = 0.5
+
+    def __post_init__(self) -> None:
+        if self.segmenter not in ("pose", "selfie"):
+            raise ValueError(f"segmenter must be 'pose' or 'selfie', got {self.segmenter!r}")
+        if self.flow not in (None, "dis", "deepflow"):
+            raise ValueError(f"flow must be None, 'dis' or 'deepflow', got {self.flow!r}")
+        for name in ("mask_threshold", "min_detection_confidence"):
+            value = getattr(self, name)
+            if not 0.0 < value < 1.0:
+                raise ValueError(f"{name} must be in (0, 1), got {value!r}")
+        for name in ("min_mask_fraction", "other_person_fraction", "min_person_fraction"):
+            value = getattr(self, name)
+            if not 0.0 <= value <= 1.0:
+                raise ValueError(f"{name} must be in [0, 1], got {value!r}")
+        if self.temporal_sigma < 0 or self.max_hole_fraction < 0 or self.grabcut_band_px < 1:
+            raise ValueError(
+                "temporal_sigma and max_hole_fraction must be >= 0 and grabcut_band_px >= 1, got "
+                f"{self.temporal_sigma}, {self.max_hole_fraction}, {self.grabcut_band_px}"
+            )
+
+
+@dataclass
+class Detectors:
+    """The detectors perception runs; any may be None when not needed.
+
+    ``segmenter`` is used for masks when given; otherwise the pose detector's own mask.
+    """
+
+    pose: PoseDetector | None = None
+    segmenter: PersonSegmenter | None = None
+    face: FaceDetector | None = None
+    flow: FlowEstimator | None = None
+
+    def names(self) -> dict[str, str | None]:
+        """Each detector's name (None when absent), for cache keys."""
+        return {
+            "pose": self.pose.name if self.pose is not None else None,
+            "segmenter": self.segmenter.name if self.segmenter is not None else None,
+            "face": self.face.name if self.face is not None else None,
+        }
+
+    def close(self) -> None:
+        """Close the detectors that hold resources (mediapipe graphs)."""
+        for det in (self.pose, self.segmenter, self.face, self.flow):
+            close = getattr(det, "close", None)
+            if callable(close):
+                close()
+
+    def __enter__(self) -> Detectors:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _mediapipe_version() -> str:
+    try:
+        return version("mediapipe")
+    except PackageNotFoundError:  # pragma: no cover
+        return "unknown"
+
+
+def _needs(
+    settings: PerceptionSettings, pre: PrecomputedPerception
+) -> tuple[bool, bool, bool]:
+    """Whether pose detection, a separate segmenter and face detection must run."""
+    need_segmenter = pre.masks is None and settings.segmenter == "selfie"
+    need_pose = pre.keypoints is None or (pre.masks is None and settings.segmenter == "pose")
+    need_face = settings.face and pre.face is None
+    return need_pose, need_segmenter, need_face
+
+
+def default_detectors(
+    settings: PerceptionSettings | None = None,
+    precomputed: PrecomputedPerception | None = None,
+) -> Detectors:
+    """Mediapipe (and OpenCV flow) detectors for ``settings``; only those that will run are
+    made. Close them with :meth:`Detectors.close` (or use as a context manager)."""
+    from monoavatar.perception.mediapipe_backend import (
+        MediaPipeFaceMesh,
+        MediaPipePose,
+        MediaPipeSelfieSegmenter,
+    )
+
+    settings = settings or PerceptionSettings()
+    need_pose, need_segmenter, need_face = _needs(settings, precomputed or PrecomputedPerception())
+    conf = settings.min_detection_confidence
+    return Detectors(
+        pose=MediaPipePose(conf, segmentation=settings.segmenter == "pose") if need_pose else None,
+        segmenter=MediaPipeSelfieSegmenter() if need_segmenter else None,
+        face=MediaPipeFaceMesh(min_detection_confidence=conf) if need_face else None,
+        flow=make_flow_estimator(settings.flow) if settings.flow else None,
+    )
+
+
+def _default_names(settings: PerceptionSettings, pre: PrecomputedPerception) -> dict[str, object]:
+    """The names :func:`default_detectors` would give, without loading mediapipe."""
+    need_pose, need_segmenter, need_face = _needs(settings, pre)
+    return {
+        "backend": f"mediapipe-{_mediapipe_version()}",
+        "pose": need_pose,
+        "segmenter": need_segmenter,
+        "face": need_face,
+    }
+
+
+# -- per-image helpers ------------------------------------------------------------------------
+def head_box(keypoints: np.ndarray) -> tuple[float, float, float] | None:
+    """A square box around the head from body landmarks: (centre x, centre y, side) in px.
+
+    Uses the face landmarks 0-10 (nose, eyes, ears, mouth) seen with confidence > 0.2: side =
+    max(3 × their extent, 0.9 × shoulder width, 48 px). None with fewer than 2 such points.
+    """
+    head = keypoints[:11]
+    seen = head[head[:, 2] > 0.2, :2]
+    if len(seen) < 2:
+        return None
+    extent = float(np.ptp(seen, axis=0).max())
+    side = max(3.0 * extent, 48.0)
+    if keypoints[11, 2] > 0.2 and keypoints[12, 2] > 0.2:
+        side = max(side, 0.9 * float(np.linalg.norm(keypoints[11, :2] - keypoints[12, :2])))
+    cx, cy = seen.mean(axis=0)
+    return float(cx), float(cy), side
+
+
+def detect_face(
+    image: np.ndarray,
+    detector: FaceDetector,
+    keypoints: np.ndarray | None = None,
+    crop_size: int = 256,
+) -> list[np.ndarray]:
+    """Face landmarks of the faces in ``image``, looking around the head when body landmarks
+    are given (faces in full-body shots are too small for the face detector otherwise).
+
+    Args:
+        image: (H, W, 3) uint8 RGB.
+        keypoints: (33, 3) body landmarks of the person, or None to search the whole image.
+        crop_size: side in pixels the head crop is resampled to.
+    Returns:
+        (468, 3) float32 arrays (x px, y px, confidence) in ``image``'s pixel coordinates.
+    """
+    box = head_box(keypoints) if keypoints is not None else None
+    if box is None:
+        return [f.astype(np.float32) for f in detector.detect(image)]
+    cx, cy, side = box
+    x0, y0 = cx - side / 2.0, cy - side / 2.0
+    a = side / crop_size  # source pixels per crop pixel
+    # crop pixel centre j + 0.5 ↔ source x0 + (j + 0.5) a; OpenCV puts pixel centres at integers
+    M = np.array([[a, 0.0, x0 + 0.5 * a - 0.5], [0.0, a, y0 + 0.5 * a - 0.5]])
+    crop = cv2.warpAffine(
+        image, M, (crop_size, crop_size), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+        borderMode=cv2.BORDER_CONSTANT,
+    )
+    faces = []
+    for f in detector.detect(crop):
+        out = np.asarray(f, dtype=np.float32).copy()
+        out[:, 0] = x0 + out[:, 0] * a
+        out[:, 1] = y0 + out[:, 1] * a
+        faces.append(out)
+    return faces
+
+
+def _choose_face(
+    faces: list[np.ndarray], keypoints: np.ndarray | None, mask: np.ndarray
+) -> np.ndarray | None:
+    """The face belonging to the kept person: nearest the body's nose, mostly inside the mask."""
+    h, w = mask.shape
+    grown = cv2.dilate(mask.astype(np.uint8), np.ones((7, 7), np.uint8)).astype(bool)
+    good = []
+    for f in faces:
+        col = np.clip(np.floor(f[:, 0]).astype(np.int64), 0, w - 1)
+        row = np.clip(np.floor(f[:, 1]).astype(np.int64), 0, h - 1)
+        inside = (f[:, 0] >= 0) & (f[:, 0] < w) & (f[:, 1] >= 0) & (f[:, 1] < h)
+        if np.mean(inside & grown[row, col]) >= 0.5:
+            good.append(f)
+    if not good:
+        return None
+    if keypoints is not None and keypoints[0, 2] > 0.1:
+        target = keypoints[0, :2]
+    else:
+        target = np.array([w / 2.0, h / 2.0])
+    dist = [np.linalg.norm(np.nanmean(f[:, :2], axis=0) - target) for f in good]
+    return good[int(np.argmin(dist))]
+
+
+def _keypoints_belong_elsewhere(keypoints: np.ndarray, mask: np.ndarray, others: np.ndarray
+                                ) -> bool:
+    """Whether more confidently seen landmarks fall on other people than on ``mask``."""
+    h, w = mask.shape
+    seen = keypoints[keypoints[:, 2] > _VISIBLE, :2]
+    inside = (seen[:, 0] >= 0) & (seen[:, 0] < w) & (seen[:, 1] >= 0) & (seen[:, 1] < h)
+    seen = seen[inside]
+    if len(seen) == 0:
+        return False
+    col, row = seen[:, 0].astype(np.int64), seen[:, 1].astype(np.int64)
+    return int(others[row, col].sum()) > int(mask[row, col].sum())
+
+
+def _hide(image: np.ndarray, others: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """``image`` with the ``others`` regions (grown by 2 % of the diagonal) painted with the
+    median background colour, so that a detector sees only the kept person."""
+    h, w = others.shape
+    r = max(1, round(0.02 * math.hypot(h, w)))
+    kernel = np.ones((2 * r + 1, 2 * r + 1), np.uint8)
+    grown = cv2.dilate(others.astype(np.uint8), kernel).astype(bool) & ~keep
+    background = ~(grown | keep)
+    fill = np.median(image[background], axis=0) if background.any() else np.full(3, 127.0)
+    out = image.copy()
+    out[grown] = fill.astype(np.uint8)
+    return out
+
+
+def _person_region(result: PoseResult, shape: tuple[int, int], threshold: float) -> np.ndarray:
+    """(H, W) bool region of a detected person: its mask, else the hull of its landmarks."""
+    if result.segmentation is not None:
+        return np.asarray(result.segmentation >= threshold)
+    region = np.zeros(shape, np.uint8)
+    seen = result.keypoints[result.keypoints[:, 2] > _VISIBLE, :2]
+    if len(seen) >= 3:
+        hull = cv2.convexHull(np.round(seen - 0.5).astype(np.int32))
+        cv2.fillConvexPoly(region, np.asarray(hull, dtype=np.int32), (1,))
+        r = max(1, round(0.05 * math.hypot(*shape)))
+        kernel = np.ones((2 * r + 1, 2 * r + 1), np.uint8)
+        return np.asarray(cv2.dilate(region, kernel), dtype=bool)
+    return region.astype(bool)
+
+
+def _second_person(
+    image: np.ndarray,
+    first: PoseResult,
+    pose: PoseDetector,
+    settings: PerceptionSettings,
+    min_area: int,
+) -> tuple[PoseResult, bool]:
+    """Look for another person with the first one hidden. Returns the detection to keep (the
+    more central and larger) and whether a second person was found.
+
+    A second detection counts when its region covers at least ``other_person_fraction`` of the
+    first's area, barely overlaps the first (< 20 %), and most of its confidently seen landmarks
+    lie outside the first person.
+    """
+    shape = (int(image.shape[0]), int(image.shape[1]))
+    first_region = _person_region(first, shape, settings.mask_threshold)
+    if int(first_region.sum()) < min_area:
+        return first, False
+    other = pose.detect(_hide(image, first_region, np.zeros(shape, dtype=bool)))
+    if other is None:
+        return first, False
+    other_region = _person_region(other, shape, settings.mask_threshold)
+    area, other_area = int(first_region.sum()), int(other_region.sum())
+    if other_area < max(min_area, settings.other_person_fraction * area):
+        return first, False
+    if int((other_region & first_region).sum()) > 0.2 * other_area:
+        return first, False
+    if _fraction_inside(other.keypoints, first_region) > 0.5:
+        return first, False
+    if person_score(other_region) > person_score(first_region):
+        return other, True
+    return first, True
+
+
+def _fraction_inside(keypoints: np.ndarray, region: np.ndarray) -> float:
+    """Fraction of the confidently seen landmarks that lie inside ``region``."""
+    h, w = region.shape
+    seen = keypoints[keypoints[:, 2] > _VISIBLE, :2]
+    inside = (seen[:, 0] >= 0) & (seen[:, 0] < w) & (seen[:, 1] >= 0) & (seen[:, 1] < h)
+    if not inside.any():
+        return 0.0
+    pts = seen[inside].astype(np.int64)
+    return float(region[pts[:, 1], pts[:, 0]].mean())
+
+
+# -- the sequence ---------------------------------------------------------------------------
+@dataclass
+class _Raw:
+    masks: np.ndarray
+    keypoints: np.ndarray
+    face: np.ndarray
+    no_person: np.ndarray
+    multiple_people: np.ndarray
+
+
+def _run(
+    frames: Frames,
+    settings: PerceptionSettings,
+    dets: Detectors,
+    pre: PrecomputedPerception,
+) -> _Raw:
+    n, h, w = len(frames), frames.height, frames.width
+    need_pose, _, need_face = _needs(settings, pre)
+    if need_pose and dets.pose is None:
+        raise ValueError("perception needs a pose detector (Detectors.pose is None)")
+    if pre.masks is None and dets.segmenter is None and dets.pose is None:
+        raise ValueError("perception needs a segmenter or a pose detector that gives masks")
+    keypoints = np.zeros((n, NUM_BODY_LANDMARKS, 3), dtype=np.float32)
+    found = np.zeros(n, dtype=bool)
+    multiple = np.zeros(n, dtype=bool)
+    min_area = max(1, int(settings.min_mask_fraction * h * w))
+    probs = np.zeros((n, h, w), dtype=np.uint8) if pre.masks is None else None
+
+    for i, image in enumerate(frames.images):
+        result = dets.pose.detect(image) if (need_pose and dets.pose is not None) else None
+        if (
+            result is not None
+            and dets.pose is not None
+            and settings.check_several_people
+            and pre.keypoints is None
+        ):
+            result, multiple[i] = _second_person(image, result, dets.pose, settings, min_area)
+        if pre.keypoints is not None:
+            keypoints[i] = pre.keypoints[i]
+            found[i] = bool(np.any(pre.keypoints[i, :, 2] > 0))
+        elif result is not None:
+            keypoints[i] = result.keypoints
+            found[i] = True
+        if probs is not None:
+            if dets.segmenter is not None:
+                prob = dets.segmenter.segment(image)
+            elif result is not None and result.segmentation is not None:
+                prob = result.segmentation
+            else:
+                continue
+            probs[i] = np.clip(np.rint(np.asarray(prob, np.float32) * 255.0), 0, 255)
+
+    masks = np.zeros((n, h, w), dtype=bool)
+    face = np.full((n, NUM_FACE_LANDMARKS, 3), np.nan, dtype=np.float32)
+    for i, image in enumerate(frames.images):
+        if probs is None:
+            assert pre.masks is not None
+            mask = np.asarray(pre.masks[i], dtype=bool)
+        else:
+            smoothed = smooth_frame(probs, frames.indices, i, settings.temporal_sigma)
+            person = smoothed >= settings.mask_threshold * 255.0
+            choice = select_person(person, settings.other_person_fraction, min_area)
+            mask = choice.mask
+            multiple[i] |= choice.num_people > 1
+            if (
+                multiple[i]
+                and pre.keypoints is None
+                and dets.pose is not None
+                and found[i]
+                and _keypoints_belong_elsewhere(keypoints[i], mask, choice.others)
+            ):
+                again = dets.pose.detect(_hide(image, choice.others, mask))
+                if again is not None:
+                    keypoints[i] = again.keypoints
+                else:
+                    found[i] = False
+            if settings.grabcut:
+                mask = largest_component(grabcut_refine(image, mask, settings.grabcut_band_px))
+            mask = fill_holes(mask, settings.max_hole_fraction)
+        if not found[i] or int(mask.sum()) < min_area:
+            found[i] = False
+            continue
+        masks[i] = mask
+        if pre.face is not None:
+            face[i] = pre.face[i]
+        elif need_face and dets.face is not None:
+            faces = detect_face(image, dets.face, keypoints[i])
+            chosen = _choose_face(faces, keypoints[i], mask)
+            if chosen is not None:
+                face[i] = chosen
+    no_person = ~found
+    keypoints[no_person] = 0.0
+    face[no_person] = np.nan
+    if pre.multiple_people is not None:
+        multiple |= np.asarray(pre.multiple_people, dtype=bool)
+    multiple &= found
+    return _Raw(masks, keypoints, face, no_person, multiple)
+
+
+def _check_precomputed(frames: Frames, pre: PrecomputedPerception) -> None:
+    n, h, w = len(frames), frames.height, frames.width
+    checks = {
+        "keypoints": (pre.keypoints, (n, NUM_BODY_LANDMARKS, 3)),
+        "face": (pre.face, (n, NUM_FACE_LANDMARKS, 3)),
+        "masks": (pre.masks, (n, h, w)),
+        "multiple_people": (pre.multiple_people, (n,)),
+    }
+    for name, (value, shape) in checks.items():
+        if value is not None and np.shape(value) != shape:
+            raise ValueError(
+                f"precomputed {name} must have shape {shape} for these frames, "
+                f"got {np.shape(value)}"
+            )
+
+
+def perceive(
+    frames: Frames,
+    camera: PinholeCamera | None = None,
+    settings: PerceptionSettings | None = None,
+    *,
+    detectors: Detectors | None = None,
+    precomputed: PrecomputedPerception | None = None,
+    use_cache: bool = True,
+    cache_dir: str | Path | None = None,
+) -> Observations:
+    """Person masks, body and face landmarks (and optionally flow) for every frame.
+
+    Args:
+        frames: the frames, (N, H, W, 3) uint8 RGB.
+        camera: the frames' camera (default: :func:`monoavatar.io.intrinsics.default_camera`);
+            it is attached to the result and does not change perception.
+        settings: options (default :class:`PerceptionSettings`).
+        detectors: detectors to use instead of mediapipe's (they are not closed here).
+        precomputed: keypoints, masks or face landmarks from elsewhere, used instead of running
+            the corresponding detector.
+        use_cache: read and write the on-disk cache.
+        cache_dir: cache root (default ``$MONOAVATAR_CACHE`` or ``~/.cache/monoavatar``).
+    Returns:
+        Observations for all N frames; frames without a person are flagged in ``no_person``.
+    Warns:
+        NoPersonWarning: listing the source indices of frames without a person.
+        MultiplePeopleWarning: listing the frames where several people were seen.
+    Raises:
+        NoPersonError: fewer frames with a person than ``settings.min_person_fraction`` of N
+            (and always when none has one).
+    """
+    settings = settings or PerceptionSettings()
+    pre = precomputed or PrecomputedPerception()
+    if len(frames) == 0:
+        raise ValueError(f"{frames.source}: no frames to perceive")
+    camera = camera or default_camera(frames.width, frames.height)
+    if (camera.width, camera.height) != (frames.width, frames.height):
+        raise ValueError(
+            f"camera is for {camera.width}x{camera.height} images, frames are "
+            f"{frames.width}x{frames.height}"
+        )
+    _check_precomputed(frames, pre)
+    names: object = detectors.names() if detectors is not None else _default_names(settings, pre)
+    perception_settings = {k: v for k, v in asdict(settings).items() if k != "flow"}
+    key = cache_mod.make_key(
+        "observations", frames.digest, perception_settings, names, pre.digest()
+    )
+    folder = cache_mod.perception_cache_dir(cache_dir)
+    entry = folder / f"{key}.npz"
+
+    cached = _load_entry(entry) if use_cache else None
+    owned: Detectors | None = None
+    try:
+        if cached is None:
+            dets = detectors if detectors is not None else default_detectors(settings, pre)
+            if detectors is None:
+                owned = dets
+            raw = _run(frames, settings, dets, pre)
+            source = pre.keypoint_source if pre.keypoints is not None else (
+                dets.pose.name if dets.pose is not None else "none"
+            )
+            obs = Observations(
+                masks=raw.masks, keypoints=raw.keypoints, face=raw.face,
+                no_person=raw.no_person, multiple_people=raw.multiple_people, camera=camera,
+                frame_indices=frames.indices, timestamps=frames.timestamps,
+                keypoint_source=source,
+            )
+            if use_cache:
+                obs.save(entry)
+        else:
+            obs = Observations(
+                masks=cached.masks, keypoints=cached.keypoints, face=cached.face,
+                no_person=cached.no_person, multiple_people=cached.multiple_people,
+                camera=camera, frame_indices=frames.indices, timestamps=frames.timestamps,
+                keypoint_source=cached.keypoint_source,
+            )
+        flow = None
+        if settings.flow is not None and len(frames) > 1:
+            estimator = detectors.flow if detectors is not None else None
+            flow = _flow(frames, estimator, settings.flow, folder, use_cache)
+    finally:
+        if owned is not None:
+            owned.close()
+    if settings.flow is not None:
+        obs = replace(obs, flow=flow if flow is not None else np.zeros((0, *obs.image_size, 2)))
+    _report(frames, obs, settings)
+    return obs
+
+
+def _load_entry(entry: Path) -> Observations | None:
+    if not entry.is_file():
+        return None
+    try:
+        return Observations.load(entry)
+    except Exception as exc:  # a damaged entry is recomputed, not fatal
+        warnings.warn(f"ignoring unreadable cache entry {entry} ({exc})", stacklevel=3)
+        return None
+
+
+def _flow(
+    frames: Frames,
+    estimator: FlowEstimator | None,
+    method: FlowMethod,
+    folder: Path,
+    use_cache: bool,
+) -> np.ndarray:
+    """Flow of consecutive frames, from the cache or computed (``estimator``, else ``method``'s
+    default estimator, made only when needed)."""
+    name = estimator.name if estimator is not None else flow_estimator_name(method)
+    key = cache_mod.make_key("flow", frames.digest, name)
+    entry = folder / f"{key}.flow.npz"
+    if use_cache:
+        arrays = cache_mod.load_arrays(entry)
+        expected = (len(frames) - 1, frames.height, frames.width, 2)
+        if arrays is not None and arrays.get("flow", np.empty(0)).shape == expected:
+            return arrays["flow"]
+    flow = flow_sequence(frames.images, estimator or make_flow_estimator(method))
+    if use_cache:
+        cache_mod.save_arrays(entry, {"flow": flow}, compress=False)
+    return flow
+
+
+def _report(frames: Frames, obs: Observations, settings: PerceptionSettings) -> None:
+    n = len(obs)
+    missing = frames.indices[obs.no_person].tolist()
+    found = n - len(missing)
+    required = max(1, math.ceil(settings.min_person_fraction * n))
+    if found < required:
+        raise NoPersonError(frames.source, missing, found, required)
+    if missing:
+        warnings.warn(
+            f"{frames.source}: no person found in {len(missing)} of {n} frame(s) "
+            f"(source indices {format_indices(missing)}); they are flagged in "
+            "Observations.no_person",
+            NoPersonWarning,
+            stacklevel=3,
+        )
+    several = frames.indices[obs.multiple_people].tolist()
+    if several:
+        warnings.warn(
+            f"{frames.source}: several people in {len(several)} frame(s) (source indices "
+            f"{format_indices(several)}); the most central and largest person was kept",
+            MultiplePeopleWarning,
+            stacklevel=3,
+        )
+
+
+def perceive_image(
+    image: np.ndarray,
+    camera: PinholeCamera | None = None,
+    settings: PerceptionSettings | None = None,
+    *,
+    detectors: Detectors | None = None,
+    use_cache: bool = False,
+) -> Observations:
+    """:func:`perceive` for one (H, W, 3) uint8 RGB image (no temporal smoothing, no cache by
+    default); returns Observations with N = 1. Pass ``detectors=default_detectors()`` to reuse
+    the mediapipe graphs over many calls."""
+    frames = Frames.from_images(np.asarray(image)[None], source="<image>")
+    return perceive(frames, camera, settings, detectors=detectors, use_cache=use_cache)
