@@ -14,9 +14,7 @@ class CliError(Exception):
 
 
 def _add_synth(sub: argparse._SubParsersAction) -> None:
-    from monoavatar.synth.motion import KINDS
-    from monoavatar.synth.scene import BACKGROUNDS, NOISE_LEVELS
-    from monoavatar.synth.subjects import CLOTHING
+    from monoavatar.synth.options import BACKGROUNDS, CLOTHING, KINDS, NOISE_LEVELS
 
     p = sub.add_parser(
         "synth",

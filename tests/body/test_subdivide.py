@@ -3,7 +3,8 @@ import torch
 import trimesh
 
 from monoavatar.body import lbs
-from monoavatar.body.subdivide import subdivide, vertex_normals
+from monoavatar.body.subdivide import subdivide
+from monoavatar.render import vertex_normals
 from tests.geometry import point_triangle_distance
 
 

@@ -23,24 +23,19 @@ import torch
 from torch import Tensor, nn
 
 from monoavatar.body import lbs
+from monoavatar.landmarks import COCO17_IN_MEDIAPIPE, MEDIAPIPE_LANDMARKS
 
 #: Per-vertex region labels, for per-vertex regularisation weights (Sec. B.3.3).
 REGIONS: tuple[str, ...] = ("torso", "face", "hair", "arms", "hands", "legs", "feet")
 
-#: mediapipe's 33 pose landmarks, in mediapipe's order.
-MEDIAPIPE_LANDMARKS: tuple[str, ...] = (
-    "nose", "left_eye_inner", "left_eye", "left_eye_outer", "right_eye_inner", "right_eye",
-    "right_eye_outer", "left_ear", "right_ear", "mouth_left", "mouth_right", "left_shoulder",
-    "right_shoulder", "left_elbow", "right_elbow", "left_wrist", "right_wrist", "left_pinky",
-    "right_pinky", "left_index", "right_index", "left_thumb", "right_thumb", "left_hip",
-    "right_hip", "left_knee", "right_knee", "left_ankle", "right_ankle", "left_heel",
-    "right_heel", "left_foot_index", "right_foot_index",
-)  # fmt: skip
-
-#: The COCO-17 subset, as indices into MEDIAPIPE_LANDMARKS.
-COCO17_IN_MEDIAPIPE: tuple[int, ...] = (
-    0, 2, 5, 7, 8, 11, 12, 13, 14, 15, 16, 23, 24, 25, 26, 27, 28
-)  # fmt: skip
+__all__ = [
+    "COCO17_IN_MEDIAPIPE",
+    "MEDIAPIPE_LANDMARKS",
+    "REGIONS",
+    "BodyModel",
+    "BodyModelError",
+    "BodyOutput",
+]
 
 
 class BodyModelError(ValueError):

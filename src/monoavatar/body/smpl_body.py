@@ -17,8 +17,8 @@ SMPL's own frame is already Y-up and facing +Z, metres.
 
 from __future__ import annotations
 
-import io
-import pickle
+import copyreg
+import importlib
 import zipfile
 from pathlib import Path
 from typing import Any
@@ -29,6 +29,8 @@ from torch import Tensor
 
 from monoavatar.body import labels
 from monoavatar.body.model import MEDIAPIPE_LANDMARKS, BodyModel, BodyModelError
+from monoavatar.io.errors import InputError
+from monoavatar.io.safe_pickle import safe_load
 
 SMPL_HELP = (
     "SMPL and SMPL-X are licensed and cannot be shipped with monoavatar. Register at "
@@ -72,29 +74,21 @@ class _Opaque:
         self.state = state
 
 
-_ALLOWED = {
-    ("numpy", "ndarray"),
-    ("numpy", "dtype"),
-    ("numpy.core.multiarray", "_reconstruct"),
-    ("numpy.core.multiarray", "scalar"),
-    ("numpy._core.multiarray", "_reconstruct"),
-    ("numpy._core.multiarray", "scalar"),
-    ("copyreg", "_reconstructor"),
-    ("builtins", "object"),
-    ("_codecs", "encode"),  # protocol-2 pickles store array bytes through it
-}
 _SPARSE = {"csc_matrix", "csr_matrix", "coo_matrix"}
 
 
-class _RestrictedUnpickler(pickle.Unpickler):
-    def find_class(self, module: str, name: str) -> Any:
-        if (module, name) in _ALLOWED:
-            return super().find_class(module, name)
-        if module.startswith("scipy.sparse") and name in _SPARSE:
-            return super().find_class(module, name)
-        if module.startswith("chumpy"):
-            return _Opaque
-        raise pickle.UnpicklingError(f"refusing to load {module}.{name} from a model file")
+def _smpl_globals(module: str, name: str) -> Any:
+    """What official SMPL pickles need beyond plain arrays: chumpy objects (read as their
+    array, chumpy is never imported) and scipy sparse matrices."""
+    if module == "chumpy" or module.startswith("chumpy."):
+        return _Opaque
+    if module.startswith("scipy.sparse") and name in _SPARSE:
+        return getattr(importlib.import_module(module), name)
+    if (module, name) == ("copyreg", "_reconstructor"):
+        return copyreg._reconstructor  # type: ignore[attr-defined]
+    if (module, name) == ("builtins", "object"):
+        return object
+    return None
 
 
 def _to_array(value: Any) -> Any:
@@ -117,14 +111,13 @@ def load_smpl_arrays(path: str | Path) -> dict[str, np.ndarray]:
             with np.load(path, allow_pickle=False) as data:
                 raw = {k: data[k] for k in data.files}
         elif path.suffix == ".pkl":
-            with path.open("rb") as fh:
-                loaded = _RestrictedUnpickler(io.BytesIO(fh.read()), encoding="latin1").load()
+            loaded = safe_load(path, _smpl_globals)
             if not isinstance(loaded, dict):
                 raise BodyModelError(f"{path}: expected a dict of arrays, got {type(loaded)}")
             raw = loaded
         else:
             raise BodyModelError(f"{path}: unsupported model file type (use .npz or .pkl)")
-    except (pickle.UnpicklingError, zipfile.BadZipFile, EOFError, ValueError, OSError) as exc:
+    except (InputError, zipfile.BadZipFile, EOFError, ValueError, OSError) as exc:
         if isinstance(exc, BodyModelError):
             raise
         raise BodyModelError(f"{path} is not a readable SMPL model file: {exc}") from exc

@@ -15,6 +15,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from monoavatar.render.renders import vertex_normals
+
 
 def _edges_and_faces(faces: np.ndarray, offset: int) -> tuple[np.ndarray, np.ndarray]:
     """Unique edges (E, 2) of a triangle list and its 4-way split (4F, 3), new vertex of edge e
@@ -34,16 +36,6 @@ def _edges_and_faces(faces: np.ndarray, offset: int) -> tuple[np.ndarray, np.nda
         ]
     )
     return edges, new_faces
-
-
-def vertex_normals(vertices: Tensor, faces: Tensor) -> Tensor:
-    """Area-weighted vertex normals. vertices (..., V, 3), faces (F, 3) → (..., V, 3) unit."""
-    v0, v1, v2 = (vertices[..., faces[:, k], :] for k in range(3))
-    face_n = torch.cross(v1 - v0, v2 - v0, dim=-1)
-    normals = torch.zeros_like(vertices)
-    for k in range(3):
-        normals = normals.index_add(-2, faces[:, k], face_n)
-    return normals / normals.norm(dim=-1, keepdim=True).clamp_min(1e-12)
 
 
 @dataclass

@@ -11,6 +11,7 @@ needs for their array buffers.
 from __future__ import annotations
 
 import pickle
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -46,13 +47,20 @@ def _allowed_globals() -> dict[tuple[str, str], Any]:
 _ALLOWED = _allowed_globals()
 
 
+#: Maps a (module, name) a pickle asks for to the object to use, or None to refuse it.
+Resolver = Callable[[str, str], Any]
+
+
 class _RestrictedUnpickler(pickle.Unpickler):
-    def __init__(self, file: BinaryIO, path: Path) -> None:
+    def __init__(self, file: BinaryIO, path: Path, resolve: Resolver | None) -> None:
         super().__init__(file, encoding="latin1")
         self._path = path
+        self._resolve = resolve
 
     def find_class(self, module: str, name: str) -> Any:
         allowed = _ALLOWED.get((module, name))
+        if allowed is None and self._resolve is not None:
+            allowed = self._resolve(module, name)
         if allowed is None:
             raise UnsafePickleError(
                 self._path,
@@ -62,8 +70,9 @@ class _RestrictedUnpickler(pickle.Unpickler):
         return allowed
 
 
-def safe_load(path: str | Path) -> Any:
-    """Unpickle ``path`` allowing only builtin containers/numbers and numpy arrays.
+def safe_load(path: str | Path, resolve: Resolver | None = None) -> Any:
+    """Unpickle ``path`` allowing only builtin containers/numbers and numpy arrays, plus what
+    ``resolve(module, name)`` returns for the names it admits (None for the rest).
 
     Raises:
         InputNotFoundError: no such file.
@@ -75,7 +84,7 @@ def safe_load(path: str | Path) -> Any:
         raise InputNotFoundError(path, "no such file")
     with path.open("rb") as fh:
         try:
-            return _RestrictedUnpickler(fh, path).load()
+            return _RestrictedUnpickler(fh, path, resolve).load()
         except UnsafePickleError:
             raise
         except (pickle.UnpicklingError, EOFError, ValueError, TypeError, AttributeError,

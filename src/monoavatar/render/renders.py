@@ -81,18 +81,20 @@ def vertex_normals(vertices: Tensor | np.ndarray, faces: Tensor | np.ndarray) ->
     normalised. Vertices used by no face, or whose faces cancel, get the zero vector.
 
     Args:
-        vertices: (V, 3) positions (any units).
+        vertices: (..., V, 3) positions (any units), optionally batched.
         faces: (F, 3) integer vertex indices.
     Returns:
-        (V, 3) unit normals, dtype of ``vertices`` (float64 for arrays); differentiable.
+        (..., V, 3) unit normals, dtype of ``vertices`` (float64 for arrays); differentiable.
     """
-    v = _float_tensor(vertices, "vertices", 3)
-    f = _faces(faces, v.shape[0]).to(v.device)
-    v0, v1, v2 = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    v = _float_tensor(vertices, "vertices")
+    if v.ndim < 2 or v.shape[-1] != 3:
+        raise ValueError(f"vertices must have shape (..., V, 3), got {tuple(v.shape)}")
+    f = _faces(faces, v.shape[-2]).to(v.device)
+    v0, v1, v2 = v[..., f[:, 0], :], v[..., f[:, 1], :], v[..., f[:, 2], :]
     face_n = torch.cross(v1 - v0, v2 - v0, dim=-1)
     acc = torch.zeros_like(v)
     for k in range(3):
-        acc = acc.index_add(0, f[:, k], face_n)
+        acc = acc.index_add(-2, f[:, k], face_n)
     return F.normalize(acc, dim=-1)
 
 

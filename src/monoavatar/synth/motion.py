@@ -10,8 +10,6 @@ import numpy as np
 
 from monoavatar.body import BodyModel
 
-KINDS = ("turnaround", "motion", "photo")
-
 
 def _set(pose: np.ndarray, body: BodyModel, joint: str, axis: int, angle: np.ndarray) -> None:
     pose[:, body.joint_index(joint), axis] += angle

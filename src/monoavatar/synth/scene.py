@@ -37,16 +37,9 @@ from monoavatar.body import BodyModel, lbs, load_body_model
 from monoavatar.camera import PinholeCamera
 from monoavatar.io.export_mesh import write_mp4, write_obj, write_ply
 from monoavatar.render import rasterize, render_textured, sample_sh_lighting
-from monoavatar.synth.motion import KINDS, free_motion, standing_pose, turnaround
-from monoavatar.synth.subjects import CLOTHING, Subject, build_subject, sample_subject
-
-NOISE_LEVELS: dict[str, dict[str, float]] = {
-    "none": {"sigma": 0.0, "jpeg": 0, "blur": 0.0, "keypoint_jitter": 0.0},
-    "low": {"sigma": 0.01, "jpeg": 92, "blur": 0.0, "keypoint_jitter": 2.0},
-    "medium": {"sigma": 0.02, "jpeg": 80, "blur": 0.8, "keypoint_jitter": 4.0},
-    "high": {"sigma": 0.04, "jpeg": 60, "blur": 1.5, "keypoint_jitter": 8.0},
-}
-BACKGROUNDS = ("plain", "gradient", "clutter")
+from monoavatar.synth.motion import free_motion, standing_pose, turnaround
+from monoavatar.synth.options import BACKGROUNDS, CLOTHING, KINDS, NOISE_LEVELS
+from monoavatar.synth.subjects import Subject, build_subject, sample_subject
 
 
 class SynthError(ValueError):

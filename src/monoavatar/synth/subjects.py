@@ -15,11 +15,10 @@ import torch
 from torch import Tensor
 
 from monoavatar.body import REGIONS, BodyModel
-from monoavatar.body.subdivide import Subdivision, subdivide, vertex_normals
+from monoavatar.body.subdivide import Subdivision, subdivide
 from monoavatar.camera import PinholeCamera
-from monoavatar.render import rasterize
-
-CLOTHING = ("minimal", "tight", "tshirt-shorts", "longsleeve-trousers", "loose", "skirt")
+from monoavatar.render import rasterize, vertex_normals
+from monoavatar.synth.options import CLOTHING
 
 SKIN_TONES = np.array(
     [[0.95, 0.80, 0.69], [0.88, 0.69, 0.56], [0.78, 0.57, 0.44], [0.62, 0.43, 0.31],
