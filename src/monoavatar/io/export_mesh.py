@@ -27,6 +27,16 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         Path(tmp).unlink(missing_ok=True)
 
 
+def texture_to_uint8(texture: np.ndarray) -> np.ndarray:
+    """A texture image (H, W, 3|4), float in [0, 1] (clipped) or uint8, as uint8."""
+    texture = np.asarray(texture)
+    if texture.ndim != 3 or texture.shape[2] not in (3, 4):
+        raise ValueError(f"texture: expected shape (H, W, 3) or (H, W, 4), got {texture.shape}")
+    if texture.dtype == np.uint8:
+        return texture
+    return (np.clip(texture, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+
+
 def write_obj(
     path: str | Path,
     vertices: np.ndarray,
@@ -50,9 +60,8 @@ def write_obj(
     else:
         lines.extend(f"f {a} {b} {c}\n" for a, b, c in faces + 1)
     if texture is not None:
-        tex = texture if texture.dtype == np.uint8 else (np.clip(texture, 0, 1) * 255 + 0.5)
         with atomic_path(path.with_suffix(".png")) as tmp:
-            Image.fromarray(np.asarray(tex, dtype=np.uint8)).save(tmp, format="PNG")
+            Image.fromarray(texture_to_uint8(texture)).save(tmp, format="PNG")
         with atomic_path(path.with_suffix(".mtl")) as tmp:
             tmp.write_text(f"newmtl skin\nKd 1 1 1\nmap_Kd {path.stem}.png\n")
     with atomic_path(path) as tmp:

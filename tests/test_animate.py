@@ -1,0 +1,181 @@
+"""animate: built-in motions, motions from params.npz, and the animated glb they give, re-skinned
+independently at every keyframe and compared with ``BodyModel.forward``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+from monoavatar.animate import (
+    MOTIONS,
+    animate,
+    animate_folder,
+    load_motion,
+    resolve_motion,
+    walk_motion,
+    wave_motion,
+)
+from monoavatar.body import Avatar, BodyModel, BodyModelError, lbs
+from monoavatar.io.errors import InputFormatError, InputNotFoundError
+from monoavatar.io.gltf import dense_weights, limit_influences, split_uv_seams
+from tests.io.gltf_reference import (
+    Glb,
+    animation_keyframe,
+    skin_vertices,
+    validate,
+    validator_available,
+)
+
+
+@pytest.fixture(scope="module")
+def avatar(anny64: BodyModel) -> Avatar:
+    rng = np.random.default_rng(11)
+    with torch.no_grad():
+        rest = anny64.rest_shape(anny64.default_shape(1))[0][0].numpy()
+    return Avatar(
+        model=anny64.identity,
+        shape=0.3 * rng.standard_normal(anny64.shape_dim),
+        shape_names=anny64.shape_names,
+        offsets=0.01 * np.sin(8.0 * rest[:, [2, 0, 1]]),
+    )
+
+
+def _check_keyframes(body: BodyModel, avatar: Avatar, path: Path, poses, translations) -> None:
+    """Every keyframe of the glb, re-skinned in NumPy, equals forward (4-influence weights)."""
+    glb = Glb.load(path)
+    t = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float64)  # noqa: E731
+    out = body(t(avatar.shape)[None], t(poses), t(translations), t(avatar.offsets))
+    joints, weights = limit_influences(body.skin_weights.double().numpy())
+    dense = t(dense_weights(joints, weights, body.num_joints))
+    want = lbs.skin(out.rest_vertices, dense, out.transforms).numpy()
+    source_vertex, _, _ = split_uv_seams(body.faces.numpy(), body.face_uv.numpy())
+    for k in range(len(poses)):
+        posed = skin_vertices(glb, *animation_keyframe(glb, k))
+        assert np.abs(posed - want[k, source_vertex]).max() < 1e-5, f"keyframe {k}"
+
+
+@pytest.mark.parametrize("make", [walk_motion, wave_motion])
+def test_builtin_motions(anny64: BodyModel, make) -> None:
+    motion = make(anny64, 40, 20.0)
+    assert motion.poses.shape == (40, anny64.num_joints, 3)
+    assert motion.translations.shape == (40, 3)
+    np.testing.assert_allclose(motion.times, np.arange(40) / 20.0)
+    assert np.isfinite(motion.poses).all() and np.abs(motion.poses).max() < np.pi
+    # a loop: the step from the last frame back to the first is like any other step
+    steps = np.abs(np.diff(motion.poses, axis=0)).max()
+    assert np.abs(motion.poses[0] - motion.poses[-1]).max() <= 1.5 * steps
+    assert motion.name in MOTIONS
+
+
+def test_walk_keeps_feet_on_the_floor(anny64: BodyModel) -> None:
+    motion = walk_motion(anny64, 30, 30.0)
+    out = anny64(
+        pose=torch.as_tensor(motion.poses), translation=torch.as_tensor(motion.translations)
+    )
+    lowest = out.vertices[..., 1].amin(dim=1)
+    np.testing.assert_allclose(lowest.numpy(), float(out.rest_vertices[0, :, 1].min()), atol=1e-9)
+    right = anny64.joint_index("wrist_r")
+    wave = wave_motion(anny64, 30, 30.0)
+    top = anny64(pose=torch.as_tensor(wave.poses[15:16])).joints[0]
+    assert top[right, 1] > top[anny64.joint_index("head"), 1]  # the waving hand is up high
+
+
+def test_animate_walk_matches_forward(anny64: BodyModel, avatar: Avatar, tmp_path: Path) -> None:
+    texture = np.full((16, 16, 3), 200, np.uint8)
+    path = animate(
+        anny64, avatar, "walk", tmp_path / "walk.glb", texture=texture, frames=12, fps=24.0
+    )
+    glb = Glb.load(path)
+    anim = glb.gltf.animations[0]
+    assert anim.name == "walk"
+    times = glb.accessor(anim.samplers[0].input)
+    np.testing.assert_allclose(times, np.arange(12) / 24.0, atol=1e-7)
+    for sampler in anim.samplers:
+        assert glb.gltf.accessors[sampler.output].count == 12
+    motion = walk_motion(anny64, 12, 24.0)
+    _check_keyframes(anny64, avatar, path, motion.poses, motion.translations)
+
+
+def test_animate_with_poses_from_params(anny64: BodyModel, avatar: Avatar, tmp_path: Path) -> None:
+    rng = np.random.default_rng(2)
+    poses = 0.3 * rng.standard_normal((4, anny64.num_joints, 3))
+    translations = np.array([[1.0, 0.2, 3.0]]) + 0.1 * rng.standard_normal((4, 3))
+    np.savez(tmp_path / "params.npz", poses=poses, translations=translations, shape=np.zeros(6))
+    motion = load_motion(tmp_path / "params.npz", fps=10.0)
+    np.testing.assert_allclose(motion.translations, translations - translations[0])
+    path = animate(anny64, avatar, tmp_path / "params.npz", tmp_path / "m.glb", fps=10.0)
+    _check_keyframes(anny64, avatar, path, poses, translations - translations[0])
+
+
+def test_animate_folder(anny64: BodyModel, avatar: Avatar, tmp_path: Path) -> None:
+    folder = tmp_path / "out"
+    folder.mkdir()
+    np.savez(
+        folder / "params.npz",
+        body_model=np.array(anny64.identity),
+        shape=avatar.shape,
+        offsets=avatar.offsets.astype(np.float32),
+        poses=np.zeros((2, anny64.num_joints, 3)),
+        translations=np.zeros((2, 3)),
+        camera_K=np.eye(3),
+        camera_R=np.eye(3),
+        camera_t=np.zeros(3),
+        image_size=np.array([64, 64]),
+    )
+    texture = np.random.default_rng(0).integers(0, 256, (32, 32, 3), dtype=np.uint8)
+    Image.fromarray(texture).save(folder / "texture.png")
+    # body None: the shipped model named in params.npz is loaded
+    path = animate_folder(folder, "wave", tmp_path / "wave.glb", frames=8)
+    glb = Glb.load(path)
+    assert glb.gltf.animations[0].name == "wave"
+    assert glb.gltf.accessors[glb.gltf.animations[0].samplers[0].input].count == 8
+    assert len(glb.gltf.images) == 1
+    motion = wave_motion(anny64, 8, 30.0)
+    with_offsets = Avatar(
+        avatar.model,
+        avatar.shape,
+        avatar.shape_names,
+        avatar.offsets.astype(np.float32).astype(np.float64),
+    )
+    _check_keyframes(anny64, with_offsets, path, motion.poses, motion.translations)
+
+
+def test_errors(anny64: BodyModel, avatar: Avatar, tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="unknown motion 'dance'"):
+        resolve_motion(anny64, "dance")
+    with pytest.raises(InputNotFoundError):
+        animate(anny64, avatar, tmp_path / "missing.npz", tmp_path / "x.glb")
+    np.savez(tmp_path / "few.npz", poses=np.zeros((3, 5, 3)))
+    with pytest.raises(InputFormatError, match="5 joints"):
+        animate(anny64, avatar, tmp_path / "few.npz", tmp_path / "x.glb")
+    with pytest.raises(ValueError, match="at least 2 frames"):
+        walk_motion(anny64, 1)
+    other = Avatar("smpl:neutral", avatar.shape, avatar.shape_names, avatar.offsets)
+    with pytest.raises(BodyModelError, match="smpl:neutral"):
+        animate(anny64, other, "walk", tmp_path / "x.glb")
+    with pytest.raises(InputNotFoundError, match="params.npz"):
+        animate_folder(tmp_path, "walk", tmp_path / "x.glb")
+    np.savez(
+        tmp_path / "params.npz",
+        body_model=np.array("smpl:neutral"),
+        shape=np.zeros(10),
+        offsets=np.zeros((6890, 3)),
+    )
+    with pytest.raises(BodyModelError, match="pass the body model"):
+        animate_folder(tmp_path, "walk", tmp_path / "x.glb")
+    assert not (tmp_path / "x.glb").exists()
+
+
+def test_animated_glb_validates(anny64: BodyModel, avatar: Avatar, tmp_path: Path) -> None:
+    reason = validator_available()
+    if reason is not None:
+        pytest.skip(reason)
+    path = animate(
+        anny64, avatar, "wave", tmp_path / "wave.glb", frames=10, texture=np.zeros((8, 8, 3))
+    )
+    issues = validate(path)["issues"]
+    assert issues["numErrors"] == 0 and issues["numWarnings"] == 0, issues["messages"]
