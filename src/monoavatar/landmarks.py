@@ -18,3 +18,20 @@ MEDIAPIPE_LANDMARKS: tuple[str, ...] = (
 COCO17_IN_MEDIAPIPE: tuple[int, ...] = (
     0, 2, 5, 7, 8, 11, 12, 13, 14, 15, 16, 23, 24, 25, 26, 27, 28
 )  # fmt: skip
+
+
+def _mirror_index(name: str) -> int:
+    if name.startswith("left_"):
+        return MEDIAPIPE_LANDMARKS.index("right_" + name[5:])
+    if name.startswith("right_"):
+        return MEDIAPIPE_LANDMARKS.index("left_" + name[6:])
+    if name.endswith("_left"):
+        return MEDIAPIPE_LANDMARKS.index(name[:-5] + "_right")
+    if name.endswith("_right"):
+        return MEDIAPIPE_LANDMARKS.index(name[:-6] + "_left")
+    return MEDIAPIPE_LANDMARKS.index(name)
+
+
+#: For each landmark, the index of its left/right counterpart (itself for the nose): indexing
+#: keypoints with it swaps the person's left and right.
+MEDIAPIPE_MIRROR: tuple[int, ...] = tuple(_mirror_index(n) for n in MEDIAPIPE_LANDMARKS)

@@ -7,8 +7,10 @@ import numpy as np
 from monoavatar.perception.masks import (
     fill_holes,
     grabcut_refine,
+    landmark_motion,
     largest_component,
     select_person,
+    smooth_frame,
     temporal_smooth,
 )
 
@@ -30,6 +32,28 @@ def test_temporal_smooth_weights() -> None:
     np.testing.assert_array_equal(far, probs)  # frames 10 source frames apart are not mixed
     uint8 = temporal_smooth((probs * 255).astype(np.uint8), np.arange(5), 1.0)
     np.testing.assert_allclose(uint8, out * 255, rtol=1e-5)
+
+
+def test_temporal_smooth_mixes_only_the_allowed_frames() -> None:
+    probs = np.zeros((3, 1, 1), np.float32)
+    probs[1] = 1.0
+    alone = smooth_frame(probs, np.arange(3), 1, 1.0, mixable=np.zeros(3, bool))
+    assert alone[0, 0] == 1.0  # frame 1 itself is always mixed
+    one = smooth_frame(probs, np.arange(3), 1, 1.0, mixable=np.array([True, False, False]))
+    assert math.isclose(one[0, 0], 1.0 / (1.0 + math.exp(-0.5)), rel_tol=1e-6)
+
+
+def test_landmark_motion() -> None:
+    a = np.zeros((5, 3))
+    a[:, 1] = [0, 10, 20, 30, 40]  # extent 40 px
+    a[:, 2] = 0.9
+    b = a.copy()
+    b[:, 0] += 2.0  # everything moves 2 px
+    assert math.isclose(landmark_motion(a, b), 2.0 / 40.0)
+    b[4, 0] += 100.0  # one landmark jumps: the 90th percentile sees part of it
+    assert 2.0 / 40.0 < landmark_motion(a, b) < 102.0 / 40.0
+    b[2:, 2] = 0.1  # fewer than 3 landmarks seen in both: unknown
+    assert landmark_motion(a, b) == math.inf
 
 
 def test_select_person_prefers_central_and_large() -> None:

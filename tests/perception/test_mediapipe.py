@@ -10,14 +10,17 @@ import cv2
 import numpy as np
 import pytest
 
+from monoavatar.io import Frames
 from monoavatar.perception import (
     MEDIAPIPE_POSE_LANDMARKS,
     MultiplePeopleWarning,
     NoPersonError,
+    NoPersonWarning,
     Observations,
     PerceptionSettings,
     default_detectors,
     detect_face,
+    perceive,
     perceive_image,
 )
 from monoavatar.perception.mediapipe_backend import MediaPipeFaceMesh, MediaPipePose
@@ -46,6 +49,21 @@ def test_landmarks_land_on_the_person(astronaut_observations: Observations) -> N
     assert kp[LM["right_eye"], 0] < kp[LM["left_eye"], 0]
     # the face in the photo: nose near (222, 128) px (checked by eye)
     np.testing.assert_allclose(kp[LM["nose"], :2], [222, 128], atol=15)
+
+
+def test_confident_landmarks_lie_on_the_mask(astronaut_observations: Observations) -> None:
+    """Every landmark mediapipe is sure of lies on the person's mask; the ones it guesses below
+    the photo's edge (legs, hips, hands) are marked unsure."""
+    kp, mask = astronaut_observations.keypoints[0], astronaut_observations.masks[0]
+    h, w = mask.shape
+    sure = kp[:, 2] > 0.5
+    assert sure.sum() >= 12  # face, shoulders and more
+    assert all(_inside(mask, xy) for xy in kp[sure, :2])
+    outside = (kp[:, 0] < 0) | (kp[:, 0] >= w) | (kp[:, 1] < 0) | (kp[:, 1] >= h)
+    assert outside.any() and np.all(kp[outside, 2] < 0.3)
+    # the head's landmarks lie within the face region, between the shoulders
+    head = kp[:11, :2]
+    assert np.all((head[:, 0] > 170) & (head[:, 0] < 290) & (head[:, 1] > 70) & (head[:, 1] < 180))
 
 
 def test_mask_covers_the_person(astronaut_observations: Observations) -> None:
@@ -93,6 +111,25 @@ def test_no_person(astronaut: np.ndarray) -> None:
         assert pose.detect(gradient) is None
     with pytest.raises(NoPersonError, match="found in only 0 of 1"):
         perceive_image(gradient)
+
+
+def test_frames_without_a_person_in_a_sequence(astronaut: np.ndarray) -> None:
+    """Real detectors on frames where the person leaves: the frames without anybody are listed
+    by index; too many of them stop perception."""
+    photo = cv2.resize(astronaut, (256, 256), interpolation=cv2.INTER_AREA)
+    y, x = np.mgrid[:256, :256]
+    empty = np.stack([x, y, (x + y) // 2], axis=-1).astype(np.uint8)
+    settings = PerceptionSettings(face=False)
+    frames = Frames(np.stack([photo, empty, photo, photo, empty]), np.arange(5) / 5.0,
+                    np.array([0, 5, 10, 15, 20]), fps=5.0)  # fmt: skip
+    with pytest.warns(NoPersonWarning, match=r"no person found in 2 of 5 .*\[5, 20\]"):
+        obs = perceive(frames, settings=settings, use_cache=False)
+    np.testing.assert_array_equal(obs.no_person, [False, True, False, False, True])
+    person = obs.masks[[0, 2, 3]].all(axis=0)
+    assert person[45:85, 95:130].mean() > 0.97 and person[130:210, 55:150].mean() > 0.97
+    mostly_empty = frames.subset([0, 1, 4])
+    with pytest.raises(NoPersonError, match=r"found in only 1 of 3 .* frame\(s\) \[5, 20\]"):
+        perceive(mostly_empty, settings=settings, use_cache=False)
 
 
 def test_several_people_are_reported(astronaut: np.ndarray) -> None:

@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import math
 import warnings
 from pathlib import Path
 
@@ -120,6 +121,24 @@ def test_damaged_cache_entry_is_recomputed(
     assert [p.name for p in entry.parent.iterdir() if p.name.endswith(".tmp")] == []
 
 
+class CrashingPose(FakePose):
+    """Fails on its third call (a detector error half-way through a sequence)."""
+
+    def detect(self, image: np.ndarray) -> PoseResult | None:
+        if self.calls == 2:
+            raise RuntimeError("detector crashed")
+        return super().detect(image)
+
+
+def test_a_failure_half_way_writes_nothing(isolated_cache: Path) -> None:
+    frames = Frames.from_images(blob_frames(4))
+    with pytest.raises(RuntimeError, match="detector crashed"):
+        perceive(frames, detectors=Detectors(pose=CrashingPose()))
+    assert [p for p in isolated_cache.rglob("*") if p.is_file()] == []
+    obs = perceive(frames, detectors=Detectors(pose=FakePose()))  # and nothing stale is read
+    assert not obs.no_person.any()
+
+
 def test_frames_without_a_person_are_listed(
     fakes: tuple[FakePose, FakeSegmenter, FakeFace],
 ) -> None:
@@ -198,22 +217,51 @@ def test_several_people_keep_the_central_largest() -> None:
     assert 50 <= obs.keypoints[0, 0, 0] <= 80
 
 
+class DropoutSegmenter(FakeSegmenter):
+    """Bright pixels are people, except that on its third call the lower legs drop out (a
+    segmentation flicker: the image itself is unchanged)."""
+
+    def segment(self, image: np.ndarray) -> np.ndarray:
+        prob = super().segment(image)
+        if self.calls == 3:
+            prob[40:54] = 0.0
+        return prob
+
+
 def test_temporal_smoothing_removes_flicker(
     fakes: tuple[FakePose, FakeSegmenter, FakeFace],
 ) -> None:
     pose, _, _ = fakes
-    images = blob_frames(5)
-    images[2, 40:54, 22:34] = 20  # the legs vanish in one frame (a segmentation dropout)
-    frames = Frames.from_images(images)
-    smooth = perceive(frames, detectors=Detectors(pose=pose))
-    assert smooth.masks[2, 40:54, 24:34].all()
+    frames = Frames.from_images(blob_frames(5))  # the person moves 1 px (2 % of its height)
+    smooth = perceive(frames, detectors=Detectors(pose=pose, segmenter=DropoutSegmenter()))
+    assert smooth.masks[2, 40:54, 24:36].all()
     raw = perceive(frames, settings=PerceptionSettings(temporal_sigma=0.0),
-                   detectors=Detectors(pose=pose))
-    assert not raw.masks[2, 45, 28]
+                   detectors=Detectors(pose=pose, segmenter=DropoutSegmenter()))
+    assert not raw.masks[2, 40:54].any()
     # key-frames far apart in the source are not mixed
-    far = Frames(images, np.zeros(5), np.arange(5) * 100)
-    sparse = perceive(far, detectors=Detectors(pose=pose))
-    assert not sparse.masks[2, 45, 28]
+    far = Frames(frames.images, np.zeros(5), np.arange(5) * 100)
+    sparse = perceive(far, detectors=Detectors(pose=pose, segmenter=DropoutSegmenter()))
+    assert not sparse.masks[2, 40:54].any()
+
+
+def test_temporal_smoothing_skips_frames_with_motion(
+    fakes: tuple[FakePose, FakeSegmenter, FakeFace],
+) -> None:
+    """A person moving fast (here 12 px per frame, 28 % of their height) is not smoothed: mixing
+    would cut their moving edges off. Without the motion gate, it would."""
+    pose, segmenter, _ = fakes
+    images = np.full((4, 64, 64, 3), 20, np.uint8)
+    for k in range(4):
+        images[k, 10:54, 8 + 12 * k : 24 + 12 * k] = 220
+    frames = Frames.from_images(images)
+    obs = perceive(frames, detectors=Detectors(pose=pose, segmenter=segmenter))
+    np.testing.assert_array_equal(obs.masks, images.mean(axis=3) > 128)
+    with pytest.warns(MultiplePeopleWarning):  # mixing even splits the moving person in two
+        ungated = perceive(frames, settings=PerceptionSettings(temporal_max_motion=math.inf),
+                           detectors=Detectors(pose=pose, segmenter=segmenter))
+    assert ungated.masks[1].sum() < obs.masks[1].sum()
+    with pytest.raises(ValueError, match="temporal_max_motion must be >= 0"):
+        PerceptionSettings(temporal_max_motion=-1.0)
 
 
 def test_separate_segmenter_is_used(fakes: tuple[FakePose, FakeSegmenter, FakeFace]) -> None:

@@ -35,20 +35,53 @@ def temporal_smooth(
 
 
 def smooth_frame(
-    probabilities: np.ndarray, frame_indices: np.ndarray, i: int, sigma: float
+    probabilities: np.ndarray,
+    frame_indices: np.ndarray,
+    i: int,
+    sigma: float,
+    mixable: np.ndarray | None = None,
 ) -> np.ndarray:
     """Frame ``i`` of :func:`temporal_smooth` alone: (N, H, W) → (H, W) float32 (so that a long
-    sequence needs no second (N, H, W) float array)."""
+    sequence needs no second (N, H, W) float array).
+
+    Args:
+        mixable: (N,) bool, the frames that may be mixed into frame ``i`` (frame ``i`` itself
+            always is); None: all. The weights are normalised over the frames mixed.
+    """
     idx = np.asarray(frame_indices, dtype=np.float64)
     if sigma <= 0 or len(idx) < 2:
         return probabilities[i].astype(np.float32)
-    near = np.flatnonzero(np.abs(idx - idx[i]) <= 3.0 * sigma)
+    close = np.abs(idx - idx[i]) <= 3.0 * sigma
+    if mixable is not None:
+        close &= np.asarray(mixable, dtype=bool)
+        close[i] = True
+    near = np.flatnonzero(close)
     weights = np.exp(-0.5 * ((idx[near] - idx[i]) / sigma) ** 2)
     weights /= weights.sum()
     acc = np.zeros(probabilities.shape[1:], dtype=np.float32)
     for j, wj in zip(near, weights, strict=True):
         acc += np.float32(wj) * probabilities[j].astype(np.float32)
     return acc
+
+
+def landmark_motion(keypoints_a: np.ndarray, keypoints_b: np.ndarray, seen: float = 0.5) -> float:
+    """How far a person moved between two frames, from their body landmarks: the 90th percentile
+    of the displacement of the landmarks seen (confidence > ``seen``) in both, divided by the
+    vertical extent of those landmarks in the first frame. ``inf`` with fewer than 3 such
+    landmarks (motion unknown).
+
+    Args:
+        keypoints_a, keypoints_b: (K, 3) x px, y px, confidence.
+    """
+    a, b = np.asarray(keypoints_a, np.float64), np.asarray(keypoints_b, np.float64)
+    both = (a[:, 2] > seen) & (b[:, 2] > seen)
+    if int(both.sum()) < 3:
+        return float("inf")
+    extent = float(np.ptp(a[both, 1]))
+    if extent <= 0.0:
+        return float("inf")
+    shift = np.linalg.norm(a[both, :2] - b[both, :2], axis=1)
+    return float(np.percentile(shift, 90)) / extent
 
 
 def person_score(mask: np.ndarray) -> float:
