@@ -1,1 +1,34 @@
-"""texture stage."""
+"""Texture stage (Sec. B.3.4): back-projection of key frames onto the UV layout, the median of
+the most orthogonal views, seam-aware hole filling, and SH lighting estimation for albedo."""
+
+from monoavatar.texture.atlas import (
+    TexelAtlas,
+    TextureError,
+    build_atlas,
+    seam_edges,
+    texel_graph,
+)
+from monoavatar.texture.backproject import (
+    TextureSettings,
+    UVTexture,
+    build_texture,
+    sampling_size,
+)
+from monoavatar.texture.fill import dilate_texture, harmonic_fill
+from monoavatar.texture.lighting import estimate_sh, fit_sh
+
+__all__ = [
+    "TexelAtlas",
+    "TextureError",
+    "TextureSettings",
+    "UVTexture",
+    "build_atlas",
+    "build_texture",
+    "dilate_texture",
+    "estimate_sh",
+    "fit_sh",
+    "harmonic_fill",
+    "sampling_size",
+    "seam_edges",
+    "texel_graph",
+]

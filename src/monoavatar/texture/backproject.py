@@ -1,0 +1,506 @@
+"""Texture from back-projection: the median of the most orthogonal views (Sec. B.3.4).
+
+"To create the texture, we warp our estimated canonical model back to each frame, back-project
+the image color to all visible vertices, and finally generate a texture image by calculating
+the median of the most orthogonal texels from all views." Here per texel rather than per vertex:
+
+1. every chart texel of the UV layout is a point on the mesh (:mod:`monoavatar.texture.atlas`);
+2. in each key frame the posed mesh is rasterised; a texel is *visible* when the rasteriser shows
+   its own face at its projection, or a surface within ``depth_tolerance`` of its depth; samples
+   near the person mask's border or near depth discontinuities of the render (where a small
+   misalignment of the fitted body picks up the background or an occluder) are dropped;
+3. each visible texel gets the bilinearly sampled image colour and the cosine between its
+   (smooth) normal and the direction to the camera; optionally the colour is divided by the
+   SH shading of that normal (the texture is then albedo);
+4. per texel the ``top_k`` views with the largest cosine are kept and the texel is set to their
+   per-channel median (robust to a view that is occluded or misregistered);
+5. texels never seen are filled harmonically over the surface (across UV seams,
+   :mod:`monoavatar.texture.fill`), and the charts are dilated so mipmaps do not bleed.
+
+Conventions: OpenCV cameras (:class:`monoavatar.camera.PinholeCamera`), pixel centres at
+``(col + 0.5, row + 0.5)``, metres; glTF UVs; colours linear in [0, 1] (frames as uint8).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import Tensor
+from tqdm import tqdm
+
+from monoavatar.camera import PinholeCamera
+from monoavatar.render import rasterize, sh_shading, vertex_normals
+from monoavatar.texture.atlas import (
+    TexelAtlas,
+    TextureError,
+    as_array,
+    build_atlas,
+    check_mesh_uv,
+    texel_graph,
+)
+from monoavatar.texture.fill import dilate_texture, harmonic_fill
+
+__all__ = ["TextureSettings", "UVTexture", "build_texture", "sampling_size"]
+
+
+@dataclass(frozen=True)
+class TextureSettings:
+    """Options of :func:`build_texture`.
+
+    Attributes:
+        size: side of the returned texture in texels.
+        sample_size: side of the texture grid the views are sampled on; the result is resized
+            to ``size``. None picks it from the data: the smallest grid whose texels are
+            ``texels_per_pixel`` times finer than the frames' pixels on the surface, at most
+            ``size`` (a 540-pixel frame of a whole standing person gives about 340; sampling
+            finer costs time and adds no detail the frames do not have).
+        texels_per_pixel: see ``sample_size``.
+        top_k: views per texel whose median is taken (the most orthogonal ones).
+        min_cos: views seeing a texel at a cosine (normal · direction to the camera) below this
+            are ignored.
+        depth_tolerance: metres; a texel whose projection shows another face still counts as
+            visible when that surface is this close to the texel's depth.
+        mask_margin: pixels; samples closer than this to the border of the person mask (or
+            outside it) are dropped.
+        edge_margin: pixels; samples within this distance of an occlusion boundary of the
+            rendered mesh (a depth jump between neighbouring pixels, both on the mesh) are
+            dropped: a slightly misplaced body would take the occluder's colour there.
+        edge_depth: metres; the smallest depth jump that is an occlusion boundary (larger jumps
+            are needed where an oblique surface changes depth that much across one pixel).
+        shading_floor: when dividing out shading, shading values are clamped to at least this.
+        fill: harmonically fill texels never seen (otherwise they stay black).
+        dilation: texels to grow the texture beyond the chart borders.
+    """
+
+    size: int = 1024
+    sample_size: int | None = None
+    texels_per_pixel: float = 1.25
+    top_k: int = 5
+    min_cos: float = 0.4
+    depth_tolerance: float = 0.01
+    mask_margin: int = 2
+    edge_margin: int = 2
+    edge_depth: float = 0.03
+    shading_floor: float = 0.05
+    fill: bool = True
+    dilation: int = 8
+
+    def __post_init__(self) -> None:
+        if self.size < 2:
+            raise TextureError(f"size must be at least 2, got {self.size}")
+        if self.sample_size is not None and self.sample_size < 2:
+            raise TextureError(f"sample_size must be at least 2, got {self.sample_size}")
+        if not self.texels_per_pixel > 0:
+            raise TextureError(f"texels_per_pixel must be positive, got {self.texels_per_pixel}")
+        if self.top_k < 1:
+            raise TextureError(f"top_k must be at least 1, got {self.top_k}")
+        if not -1.0 <= self.min_cos < 1.0:
+            raise TextureError(f"min_cos must lie in [-1, 1), got {self.min_cos}")
+        for name in ("depth_tolerance", "edge_depth", "shading_floor"):
+            if not getattr(self, name) > 0:
+                raise TextureError(f"{name} must be positive, got {getattr(self, name)}")
+        for name in ("mask_margin", "edge_margin", "dilation"):
+            if getattr(self, name) < 0:
+                raise TextureError(f"{name} must be >= 0, got {getattr(self, name)}")
+
+
+@dataclass(frozen=True)
+class UVTexture:
+    """A texture built from views (glTF UV layout, S x S texels).
+
+    Attributes:
+        image: (S, S, 3) uint8 texture: albedo when shading was divided out (``albedo``),
+            else the observed (shaded) colour. Linear values, like the frames.
+        coverage: (S, S) bool, texels seen in at least one view.
+        chart: (S, S) bool, texels inside the UV charts (the rest is dilation / padding).
+        views: (S, S) int16 number of views whose median gave the texel (0 = filled).
+        best_cos: (S, S) float32 cosine of the most orthogonal view (0 where unseen).
+        albedo: whether the SH shading was divided out.
+        sample_size: side of the grid the views were sampled on; the image was resized from it
+            bilinearly, and the four maps above by nearest texel.
+    """
+
+    image: np.ndarray
+    coverage: np.ndarray
+    chart: np.ndarray
+    views: np.ndarray
+    best_cos: np.ndarray
+    albedo: bool
+    sample_size: int
+
+    @property
+    def size(self) -> int:
+        return int(self.image.shape[0])
+
+    def as_float(self) -> np.ndarray:
+        """(S, S, 3) float32 in [0, 1], as :func:`monoavatar.render.render_textured` expects."""
+        return self.image.astype(np.float32) / 255.0
+
+
+# -- inputs -----------------------------------------------------------------------------------
+
+
+def _cameras(camera: PinholeCamera | Sequence[PinholeCamera], n: int) -> list[PinholeCamera]:
+    if isinstance(camera, PinholeCamera):
+        return [camera] * n
+    cams = list(camera)
+    if len(cams) != n or not all(isinstance(c, PinholeCamera) for c in cams):
+        raise TextureError(f"camera must be a PinholeCamera or {n} of them, got {len(cams)}")
+    return cams
+
+
+def _lighting(sh: Tensor | np.ndarray | None, n: int) -> np.ndarray | None:
+    if sh is None:
+        return None
+    s = as_array(sh, np.float64, "sh")
+    if s.shape == (3, 9):
+        s = np.broadcast_to(s, (n, 3, 9))
+    if s.shape != (n, 3, 9):
+        raise TextureError(f"sh must have shape (3, 9) or ({n}, 3, 9), got {s.shape}")
+    return s
+
+
+def _check_frames(
+    vertices: np.ndarray, images: np.ndarray, masks: np.ndarray, cams: list[PinholeCamera]
+) -> None:
+    n = vertices.shape[0]
+    if images.ndim != 4 or images.shape[0] != n or images.shape[3] != 3:
+        raise TextureError(f"images must have shape ({n}, H, W, 3), got {images.shape}")
+    if images.dtype != np.uint8:
+        raise TextureError(f"images must be uint8, got {images.dtype}")
+    if masks.shape != images.shape[:3]:
+        raise TextureError(f"masks must have shape {images.shape[:3]}, got {masks.shape}")
+    if masks.dtype != np.bool_:
+        raise TextureError(f"masks must be boolean, got {masks.dtype}")
+    for i, cam in enumerate(cams):
+        if (cam.height, cam.width) != images.shape[1:3]:
+            raise TextureError(
+                f"frame {i}: camera is {cam.width}x{cam.height} but the image is "
+                f"{images.shape[2]}x{images.shape[1]}"
+            )
+
+
+# -- one view ---------------------------------------------------------------------------------
+
+
+def _occlusion_edges(depth: np.ndarray, focal: float, settings: TextureSettings) -> np.ndarray:
+    """(H, W) bool: pixels next to a depth jump between two surfaces (not the background).
+
+    A jump between 4-neighbours counts when it exceeds both ``edge_depth`` and what a surface
+    inclined at ``acos(min_cos)`` to the view would show across one pixel.
+    """
+    surface = np.isfinite(depth)
+    d = np.where(surface, depth, 0.0)
+    min_cos = min(max(settings.min_cos, 0.05), 0.99)
+    slope = np.sqrt(1.0 - min_cos**2) / min_cos  # tan of the most oblique accepted view
+    edges = np.zeros(depth.shape, bool)
+    for axis in (0, 1):
+        a = [slice(None)] * 2
+        b = [slice(None)] * 2
+        a[axis], b[axis] = slice(1, None), slice(None, -1)
+        both = surface[tuple(a)] & surface[tuple(b)]
+        jump = np.abs(d[tuple(a)] - d[tuple(b)])
+        limit = np.maximum(
+            settings.edge_depth, slope * np.minimum(d[tuple(a)], d[tuple(b)]) / focal
+        )
+        hit = both & (jump > limit)
+        edges[tuple(a)] |= hit
+        edges[tuple(b)] |= hit
+    return edges
+
+
+def _boundary_distance(
+    mask: np.ndarray, depth: np.ndarray, focal: float, settings: TextureSettings
+) -> tuple[np.ndarray, np.ndarray]:
+    """(H, W) float32 distances in pixels from each pixel to the nearest pixel outside the
+    person mask, and to the nearest occlusion boundary of the rendered mesh."""
+    import cv2
+
+    inside = np.pad(mask.astype(np.uint8), 1)  # the image border counts as outside
+    d_mask = cv2.distanceTransform(inside, cv2.DIST_L2, 3)[1:-1, 1:-1]
+    edges = _occlusion_edges(depth, focal, settings)
+    if edges.any():
+        d_edge = cv2.distanceTransform((~edges).astype(np.uint8), cv2.DIST_L2, 3)
+    else:
+        d_edge = np.full(mask.shape, np.inf, np.float32)
+    return d_mask, d_edge
+
+
+def _bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """(N, C) float32 bilinear samples of an (H, W, C) float32 image at pixel coordinates
+    (x, y) (pixel centres at +0.5; the border is repeated)."""
+    import cv2
+
+    n = x.size
+    if n == 0:
+        return np.zeros((0, image.shape[2]), np.float32)
+    width = 4096  # cv2.remap wants maps narrower than 32767
+    rows = -(-n // width)
+    mx = np.zeros(rows * width, np.float32)
+    my = np.zeros(rows * width, np.float32)
+    mx[:n] = x - 0.5
+    my[:n] = y - 0.5
+    out = cv2.remap(image, mx.reshape(rows, width), my.reshape(rows, width), cv2.INTER_LINEAR,
+                    borderMode=cv2.BORDER_REPLICATE)  # fmt: skip
+    return np.asarray(out.reshape(rows * width, -1)[:n], dtype=np.float32)
+
+
+@dataclass(frozen=True)
+class _Views:
+    """What one frame contributes: texel positions (M,), cosines (M,), colours (M, 3)."""
+
+    texel: np.ndarray
+    cos: np.ndarray
+    colour: np.ndarray
+
+
+def _view_samples(
+    atlas: TexelAtlas,
+    corners: np.ndarray,
+    faces: np.ndarray,
+    vertices: np.ndarray,
+    image: np.ndarray,
+    mask: np.ndarray,
+    camera: PinholeCamera,
+    sh: np.ndarray | None,
+    settings: TextureSettings,
+) -> _Views:
+    """Back-project one frame onto the chart texels (see the module docstring).
+
+    ``corners`` (N, 3) are the vertex indices of each chart texel's face. Projected positions,
+    depths, cosines and shading are computed at the vertices and interpolated linearly to the
+    texels (exact up to the perspective division within one triangle, a sub-texel effect for
+    triangles a few pixels wide).
+    """
+    frags = rasterize(vertices, faces, camera)
+    face_id = frags.face_id.numpy().ravel()
+    depth = frags.depth.numpy()
+    focal = float(np.sqrt(camera.K[0, 0] * camera.K[1, 1]))
+    d_mask, d_edge = _boundary_distance(mask, depth, focal, settings)
+    reliable = ((d_mask > settings.mask_margin) & (d_edge > settings.edge_margin)).ravel()
+    depth = depth.ravel()
+    H, W = camera.height, camera.width
+
+    normals = vertex_normals(torch.tensor(vertices), torch.tensor(faces))
+    n_np = normals.numpy()
+    cam = vertices @ camera.R.T + camera.t
+    z = cam[:, 2]
+    to_cam = camera.center - vertices
+    cos = np.einsum("vc,vc->v", n_np, to_cam) / np.maximum(np.linalg.norm(to_cam, axis=1), 1e-12)
+    zs = np.where(z > 1e-3, z, 1e-3)
+    pix = cam @ camera.K.T
+    channels = [pix[:, 0] / zs, pix[:, 1] / zs, z, cos]
+    if sh is not None:
+        shading = sh_shading(normals, torch.tensor(sh, dtype=normals.dtype)).numpy()
+        channels += list(np.maximum(shading, settings.shading_floor).T)
+    per_vertex = np.stack(channels, axis=1).astype(np.float32)
+    # faces that can contribute: in front of the camera, some corner seen obliquely enough
+    usable = (cos[faces].max(axis=1) > settings.min_cos) & (z[faces].min(axis=1) > 1e-3)
+    cand = np.flatnonzero(usable[atlas.face])
+    vals = np.einsum("nk,nkc->nc", atlas.bary[cand], per_vertex[corners[cand]])
+    x, y, zt, ct = vals[:, 0], vals[:, 1], vals[:, 2], vals[:, 3]
+    col = np.floor(x).astype(np.int64)
+    row = np.floor(y).astype(np.int64)
+    keep = (ct > settings.min_cos) & (col >= 0) & (col < W) & (row >= 0) & (row < H)
+    idx = np.flatnonzero(keep)
+    p = row[idx] * W + col[idx]
+    own = face_id[p] == atlas.face[cand[idx]]
+    near = np.abs(depth[p] - zt[idx]) <= settings.depth_tolerance
+    idx = idx[(own | near) & reliable[p]]
+    colour = _bilinear(image.astype(np.float32) * np.float32(1.0 / 255.0), x[idx], y[idx])
+    if sh is not None:
+        colour /= vals[idx, 4:7]
+    return _Views(texel=cand[idx], cos=ct[idx], colour=colour)
+
+
+# -- the most orthogonal views ----------------------------------------------------------------
+
+
+class _TopK:
+    """Per texel, the ``k`` views with the largest cosine seen so far (streaming)."""
+
+    def __init__(self, num_texels: int, k: int) -> None:
+        self.cos = np.full((k, num_texels), -np.inf, dtype=np.float32)
+        self.colour = np.zeros((k, num_texels, 3), dtype=np.float32)
+
+    def add(self, views: _Views) -> None:
+        t = views.texel
+        if t.size == 0:
+            return
+        slot = np.argmin(self.cos[:, t], axis=0)
+        better = views.cos > self.cos[slot, t]
+        t, slot = t[better], slot[better]
+        self.cos[slot, t] = views.cos[better]
+        self.colour[slot, t] = views.colour[better]
+
+    def median(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per-channel median over the filled slots: (N, 3) colours (0 where none) and (N,)
+        counts."""
+        valid = np.isfinite(self.cos)  # (k, N)
+        count = valid.sum(axis=0)
+        vals = np.where(valid[..., None], self.colour, np.inf)
+        vals.sort(axis=0)  # the filled slots first, ascending per channel
+        lo = np.clip((count - 1) // 2, 0, None)
+        hi = np.clip(count // 2, 0, None)
+        cols = np.arange(vals.shape[1])
+        med = 0.5 * (vals[lo, cols] + vals[hi, cols])
+        med[count == 0] = 0.0
+        return med, count
+
+
+# -- public -----------------------------------------------------------------------------------
+
+
+def sampling_size(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    uv: np.ndarray,
+    face_uv: np.ndarray,
+    cameras: Sequence[PinholeCamera],
+    settings: TextureSettings,
+) -> int:
+    """The texture grid to sample views on: ``settings.sample_size`` if set, else the side at
+    which one texel spans ``1 / texels_per_pixel`` of the surface a frame pixel covers (at the
+    median depth of the mesh, facing the camera), clipped to [64, ``settings.size``].
+
+    Args:
+        vertices: (F, V, 3) posed meshes; faces, uv, face_uv: the mesh and its UV layout;
+        cameras: one per frame.
+    """
+    if settings.sample_size is not None:
+        return min(settings.sample_size, settings.size)
+    tri = vertices[0][faces]
+    area3 = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    tuv = uv[face_uv]
+    d1, d2 = tuv[:, 1] - tuv[:, 0], tuv[:, 2] - tuv[:, 0]
+    area_uv = 0.5 * np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
+    ok = area_uv > 0
+    if not ok.any():
+        return settings.size
+    # metres per unit of UV, the median over the texture's area
+    scale = np.sqrt(area3[ok] / area_uv[ok])
+    order = np.argsort(scale)
+    cum = np.cumsum(area_uv[ok][order])
+    metres_per_uv = float(scale[order][np.searchsorted(cum, 0.5 * cum[-1])])
+    pixel = []
+    for v, cam in zip(vertices, cameras, strict=True):
+        z = v @ cam.R[2] + cam.t[2]
+        z = z[z > 0]
+        if z.size:
+            pixel.append(float(np.median(z)) / float(np.sqrt(cam.K[0, 0] * cam.K[1, 1])))
+    if not pixel:
+        return settings.size
+    side = settings.texels_per_pixel * metres_per_uv / float(np.median(pixel))
+    return int(np.clip(np.ceil(side), 64, settings.size))
+
+
+def build_texture(
+    vertices: Tensor | np.ndarray,
+    faces: Tensor | np.ndarray,
+    uv: Tensor | np.ndarray,
+    face_uv: Tensor | np.ndarray,
+    images: np.ndarray,
+    masks: np.ndarray,
+    camera: PinholeCamera | Sequence[PinholeCamera],
+    sh: Tensor | np.ndarray | None = None,
+    settings: TextureSettings | None = None,
+    progress: bool = False,
+) -> UVTexture:
+    """Build a texture from key frames: median of the most orthogonal views, seams filled.
+
+    Args:
+        vertices: (F, V, 3) the avatar posed into each key frame, world coordinates, metres.
+        faces: (Fc, 3) vertex indices.
+        uv: (T, 2) texture coordinates (glTF convention); face_uv: (Fc, 3) indices into uv.
+        images: (F, H, W, 3) uint8 key frames (linear colour).
+        masks: (F, H, W) bool person masks.
+        camera: the camera of all frames, or one per frame.
+        sh: SH lighting (world frame) to divide out, (3, 9) for all frames or (F, 3, 9);
+            None keeps the observed colours (the texture then has the lighting baked in).
+            :func:`monoavatar.texture.lighting.estimate_sh` estimates it.
+        settings: :class:`TextureSettings`; defaults used when None.
+        progress: show a progress bar over the frames.
+    Returns:
+        :class:`UVTexture` of ``settings.size`` texels.
+    Raises:
+        TextureError: inconsistent shapes, dtypes or sizes.
+    """
+    settings = settings or TextureSettings()
+    verts = as_array(vertices, np.float64, "vertices")
+    if verts.ndim != 3 or verts.shape[2] != 3 or verts.shape[0] < 1:
+        raise TextureError(f"vertices must have shape (F, V, 3) with F >= 1, got {verts.shape}")
+    if not np.isfinite(verts).all():
+        raise TextureError("vertices contain NaN or inf")
+    f, t, fu = check_mesh_uv(faces, uv, face_uv, verts.shape[1])
+    imgs = np.asarray(images)
+    msks = np.asarray(masks)
+    n_frames = verts.shape[0]
+    cams = _cameras(camera, n_frames)
+    _check_frames(verts, imgs, msks, cams)
+    lighting = _lighting(sh, n_frames)
+    work = sampling_size(verts, f, t, fu, cams, settings)
+    atlas = build_atlas(t, fu, work)
+
+    corners = f[atlas.face].astype(np.int32)
+    top = _TopK(atlas.num_texels, settings.top_k)
+    frames = tqdm(range(n_frames), desc="texture", unit="frame", disable=not progress)
+    for i in frames:
+        views = _view_samples(
+            atlas, corners, f, verts[i], imgs[i], msks[i], cams[i],
+            None if lighting is None else lighting[i], settings,
+        )  # fmt: skip
+        top.add(views)
+    colour, count = top.median()
+    seen = count > 0
+    best = np.where(seen, top.cos.max(axis=0), 0.0).astype(np.float32)
+    if settings.fill and seen.any() and not seen.all():
+        graph = texel_graph(atlas, f, t, fu, verts[0])
+        colour = harmonic_fill(graph, colour, seen)
+    valid = np.zeros(work * work, bool)
+    valid[atlas.texels] = seen | settings.fill
+    image = dilate_texture(
+        _scatter(atlas, colour, np.float32), valid.reshape(work, work), settings.dilation
+    )
+    if not settings.fill:  # unseen chart texels stay black
+        image[atlas.chart & ~_scatter(atlas, seen, np.bool_)] = 0.0
+    maps = {
+        "coverage": _scatter(atlas, seen, np.bool_),
+        "chart": atlas.chart,
+        "views": _scatter(atlas, count, np.int16),
+        "best_cos": _scatter(atlas, best, np.float32),
+    }
+    if work != settings.size:
+        image, maps = _resize(image, maps, settings.size)
+    return UVTexture(
+        image=(np.clip(image, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8),
+        coverage=maps["coverage"],
+        chart=maps["chart"],
+        views=maps["views"],
+        best_cos=maps["best_cos"],
+        albedo=lighting is not None,
+        sample_size=work,
+    )
+
+
+def _scatter(atlas: TexelAtlas, values: np.ndarray, dtype: type) -> np.ndarray:
+    """Per-chart-texel values (N, ...) → an (S, S, ...) image, zeros elsewhere."""
+    S = atlas.size
+    out: np.ndarray = np.zeros((S * S, *values.shape[1:]), dtype=dtype)
+    out[atlas.texels] = values
+    return out.reshape(S, S, *values.shape[1:])
+
+
+def _resize(
+    image: np.ndarray, maps: dict[str, np.ndarray], size: int
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Resize the (dilated) texture bilinearly and the per-texel maps by nearest texel."""
+    import cv2
+
+    # cv2.resize with INTER_LINEAR uses the same texel-centre convention as the UVs
+    out = np.asarray(cv2.resize(image, (size, size), interpolation=cv2.INTER_LINEAR))
+    src = image.shape[0]
+    idx = np.minimum(((np.arange(size) + 0.5) * src / size).astype(np.int64), src - 1)
+    return out, {k: v[idx][:, idx] for k, v in maps.items()}
