@@ -66,13 +66,23 @@ class SynthGroundTruth:
     masks: np.ndarray
 
     def canonical_mesh(self, subject: int = 0) -> trimesh.Trimesh:
-        """The clothed canonical (zero-pose) mesh of a subject, metres, Y up, facing +Z."""
+        """The clothed canonical (zero-pose) mesh of a subject, metres, Y up, facing +Z.
+
+        Vertices keep the file's order (not split at UV seams): the subdivided mesh's first
+        vertices are the generating body model's own, in its order, so vertex ``i`` of the
+        body model corresponds to vertex ``i`` here."""
         path = self.folder / "gt" / f"subject_{subject:03d}" / "canonical.obj"
         if not path.is_file():
             raise InputNotFoundError(path, "ground-truth canonical mesh missing")
-        mesh = trimesh.load(path, process=False, force="mesh")
-        assert isinstance(mesh, trimesh.Trimesh)
-        return mesh
+        vertices, faces = [], []
+        with open(path) as fh:
+            for line in fh:
+                if line.startswith("v "):
+                    vertices.append([float(x) for x in line.split()[1:4]])
+                elif line.startswith("f "):
+                    faces.append([int(c.split("/")[0]) - 1 for c in line.split()[1:4]])
+        return trimesh.Trimesh(np.array(vertices), np.array(faces, dtype=np.int64),
+                               process=False)  # fmt: skip
 
     def posed_mesh(self, frame: int) -> trimesh.Trimesh | None:
         """The saved posed ground-truth mesh (world metres) of a frame, by its index in the

@@ -1,0 +1,348 @@
+"""Pose fitting: the fitter recovers a known turn from renderings of its own body model,
+without ever mirroring or flipping the body, also when the detector swaps left and right on
+back views; settings validation, errors and the ``.npz`` round trip.
+
+The observations are exact: masks rasterised from the posed Anny body, keypoints projected
+from it, with confidence 1 where the keypoint is in front of (or within 8 cm behind) the
+visible surface and 0 where the body hides it (as ``monoavatar synth`` marks visibility).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from monoavatar.body import lbs
+from monoavatar.body.model import BodyModel
+from monoavatar.camera import PinholeCamera
+from monoavatar.eval import align_similarity, pa_mpjpe, silhouette_iou
+from monoavatar.fit.pose import (
+    PoseFitError,
+    PoseSettings,
+    PoseTrack,
+    evaluate_fit,
+    fit_poses,
+)
+from monoavatar.landmarks import MEDIAPIPE_MIRROR
+from monoavatar.perception.observations import Observations
+from monoavatar.render import rasterize
+
+# Image size and focal length: the person is about 190 px tall. The silhouette term's 4-level
+# pyramid needs that much (at level 3 a person of 90 px is an 11 px blob without limbs).
+SIZE, FOCAL = 208, 290.0
+# Small but converging settings: about 10 s per 20-frame fit on one core.
+SETTINGS = PoseSettings(iterations=40, init_iterations=60, silhouette_points=300,
+                        boundary_points=100)  # fmt: skip
+FRAMES, STEP_DEG = 20, 10.0  # a half turn: from facing the camera to showing the back
+
+
+@dataclass(frozen=True)
+class Scene:
+    obs: Observations
+    poses: np.ndarray  # (N, J, 3) ground truth
+    joints: np.ndarray  # (N, J, 3) ground-truth joints, world metres
+    masks: np.ndarray  # (N, H, W) exact masks
+    yaw_deg: np.ndarray  # (N,) turn about the vertical; 0 = facing the camera
+
+
+def _camera() -> PinholeCamera:
+    """As ``synth.scene.make_camera`` places it: 2.6 m in front of the person (who faces +Z),
+    a little above the pelvis, looking slightly down."""
+    return PinholeCamera.look_at(np.array([0.05, 0.1, 2.6]), np.array([0.0, -0.05, 0.0]),
+                                 np.array([0.0, 1.0, 0.0]), FOCAL, SIZE, SIZE)  # fmt: skip
+
+
+def _turn_poses(body: BodyModel, frames: int, step_deg: float) -> np.ndarray:
+    """A turn about the vertical from facing the camera, with an asymmetric A-pose (left elbow
+    bent, right leg stepping forward, head bowed), so that a mirrored body cannot match it."""
+    pose = np.zeros((frames, body.num_joints, 3))
+    pose[:, 0, 1] = np.radians(step_deg) * np.arange(frames)
+    j = body.joint_index
+    pose[:, j("shoulder_l"), 2], pose[:, j("shoulder_r"), 2] = 0.35, -0.35
+    pose[:, j("elbow_l"), 0] = -0.4
+    pose[:, j("hip_r"), 0], pose[:, j("knee_r"), 0] = -0.2, 0.3
+    pose[:, j("neck"), 0] = 0.1
+    return pose
+
+
+def _render_scene(body: BodyModel, poses: np.ndarray, swap_deg: tuple[float, float] | None = None
+                  ) -> Scene:  # fmt: skip
+    """Exact masks and keypoints of the posed body; with ``swap_deg``, the keypoints of frames
+    whose turn lies in that range have left and right exchanged (a detector that takes a back
+    view for a front view)."""
+    camera = _camera()
+    n = len(poses)
+    with torch.no_grad():
+        out = body(pose=torch.as_tensor(poses, dtype=body.dtype))
+        keypoints_3d = body.keypoints(out.vertices).double()
+    masks = np.zeros((n, SIZE, SIZE), bool)
+    keypoints = np.zeros((n, 33, 3), np.float32)
+    for i in range(n):
+        fragments = rasterize(out.vertices[i], body.faces, camera)
+        masks[i] = fragments.mask.numpy()
+        px, depth = camera.project(keypoints_3d[i])
+        px_np, depth_np = px.numpy(), depth.numpy()
+        cols, rows = (np.clip(np.floor(px_np[:, k]).astype(int), 0, SIZE - 1) for k in (0, 1))
+        in_image = np.all((px_np >= 0) & (px_np < SIZE), axis=1)
+        visible = in_image & (depth_np - fragments.depth.numpy()[rows, cols] < 0.08)
+        keypoints[i] = np.concatenate([px_np, visible[:, None]], axis=1)
+    yaw = np.degrees(poses[:, 0, 1])
+    if swap_deg is not None:
+        swap = (yaw >= swap_deg[0]) & (yaw <= swap_deg[1])
+        assert swap.sum() >= 3
+        keypoints[swap] = keypoints[swap][:, list(MEDIAPIPE_MIRROR)]
+    obs = Observations(
+        masks=masks,
+        keypoints=keypoints,
+        face=np.full((n, 468, 3), np.nan, np.float32),
+        no_person=np.zeros(n, bool),
+        multiple_people=np.zeros(n, bool),
+        camera=camera,
+        frame_indices=np.arange(n),
+        timestamps=np.arange(n) / 30.0,
+    )
+    return Scene(obs, poses, out.joints.double().numpy(), masks, yaw)
+
+
+@dataclass(frozen=True)
+class Fitted:
+    track: PoseTrack
+    joints: np.ndarray  # (N, J, 3)
+    masks: np.ndarray  # (N, H, W) the fitted body rasterised
+
+
+def _fit(body: BodyModel, scene: Scene) -> Fitted:
+    torch.manual_seed(0)
+    track = fit_poses(body, scene.obs, SETTINGS)
+    n = len(scene.obs)
+    with torch.no_grad():
+        out = body(shape=torch.as_tensor(track.shape, dtype=body.dtype)[None].expand(n, -1),
+                   pose=torch.as_tensor(track.poses, dtype=body.dtype),
+                   translation=torch.as_tensor(track.translations, dtype=body.dtype))  # fmt: skip
+    masks = np.stack([rasterize(v, body.faces, track.camera).mask.numpy() for v in out.vertices])
+    return Fitted(track, out.joints.double().numpy(), masks)
+
+
+@pytest.fixture(scope="module")
+def turn(anny32: BodyModel) -> tuple[Scene, Fitted]:
+    scene = _render_scene(anny32, _turn_poses(anny32, FRAMES, STEP_DEG))
+    return scene, _fit(anny32, scene)
+
+
+@pytest.fixture(scope="module")
+def swapped_turn(anny32: BodyModel) -> tuple[Scene, Fitted]:
+    scene = _render_scene(anny32, _turn_poses(anny32, FRAMES, STEP_DEG), swap_deg=(140.0, 220.0))
+    return scene, _fit(anny32, scene)
+
+
+# -- flip checks ------------------------------------------------------------------------------
+
+
+def _side_pairs(body: BodyModel) -> list[tuple[int, int]]:
+    names = body.joint_names
+    return [(names.index(n), names.index(n[:-2] + "_r")) for n in names if n.endswith("_l")]
+
+
+def _sides_swapped(pred: np.ndarray, gt: np.ndarray, pairs: list[tuple[int, int]],
+                   rotate: bool) -> np.ndarray:  # fmt: skip
+    """(N,) True where, after aligning the frame's fitted joints to the truth, some fitted left
+    (right) joint is closer to the true right (left) joint than to the true left (right) one.
+
+    ``rotate``: align by a similarity (Procrustes; catches a mirrored body where its depth
+    differs, e.g. a limb bent forward on the wrong side); otherwise by translation and scale
+    only (the fit is up to scale; catches mirrored bodies and bodies turned the wrong way,
+    which a rotation would align away).
+    """
+    out = np.zeros(len(pred), bool)
+    for i, (p, g) in enumerate(zip(pred, gt, strict=True)):
+        if rotate:
+            aligned = align_similarity(p, g).apply(p)
+        else:
+            pc, gc = p - p.mean(0), g - g.mean(0)
+            aligned = pc * np.sqrt((gc**2).sum() / (pc**2).sum()) + g.mean(0)
+        for a, b in pairs:
+            for same, other in ((a, b), (b, a)):
+                d_same = np.linalg.norm(aligned[same] - g[same])
+                d_other = np.linalg.norm(aligned[same] - g[other])
+                out[i] |= bool(d_other <= d_same)
+    return out
+
+
+def _heading_error_deg(poses: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """(N,) angle between the fitted and the true facing direction (root's +Z in world)."""
+    fitted = lbs.axis_angle_to_matrix(torch.as_tensor(poses[:, 0])).numpy()[:, :, 2]
+    true = lbs.axis_angle_to_matrix(torch.as_tensor(truth[:, 0])).numpy()[:, :, 2]
+    return np.degrees(np.arccos(np.clip((fitted * true).sum(-1), -1.0, 1.0)))
+
+
+def _assert_never_flipped(body: BodyModel, scene: Scene, fit: Fitted) -> None:
+    pairs = _side_pairs(body)
+    assert len(pairs) == 7
+    procrustes = _sides_swapped(fit.joints, scene.joints, pairs, rotate=True)
+    assert not procrustes.any(), f"mirrored body in frames {np.flatnonzero(procrustes)}"
+    world = _sides_swapped(fit.joints, scene.joints, pairs, rotate=False)
+    assert not world.any(), f"left/right swapped in frames {np.flatnonzero(world)}"
+    heading = _heading_error_deg(fit.track.poses, scene.poses)
+    assert heading.max() < 60.0, f"heading off by {heading.round(0)} degrees"
+
+
+def test_flip_checks_catch_mirrored_and_turned_bodies(anny32: BodyModel) -> None:
+    """The checks above can fail. A body mirrored through its sagittal plane, and the classic
+    failure (the body turned by half a turn with its pose mirrored, so that it projects much
+    like the truth), both put the fitted left joints on the true right side. (Procrustes alone
+    would align much of that away: an A-pose body is nearly flat, so its mirror image is
+    nearly the body turned by half a turn, which a rotation undoes.)"""
+    poses = _turn_poses(anny32, 3, 30.0)
+    pairs = _side_pairs(anny32)
+    with torch.no_grad():
+        truth = anny32(pose=torch.as_tensor(poses, dtype=anny32.dtype)).joints.double().numpy()
+    # reflection x → −x in the body's frame: the same body with its labels swapped
+    mirrored = np.empty_like(truth)
+    for i, p in enumerate(poses):
+        rot = lbs.axis_angle_to_matrix(torch.as_tensor(p[0])).numpy()
+        local = (truth[i] - truth[i, 0]) @ rot
+        local[:, 0] *= -1
+        mirrored[i] = local @ rot.T + truth[i, 0]
+    assert _sides_swapped(mirrored, truth, pairs, rotate=False).all()
+    # turned by half a turn with the pose mirrored (left and right joints exchanged)
+    flipped = poses.copy()
+    flipped[:, 0, 1] += np.pi
+    for a, b in pairs:
+        flipped[:, [a, b]] = poses[:, [b, a]] * np.array([1.0, -1.0, -1.0])
+    with torch.no_grad():
+        turned = anny32(pose=torch.as_tensor(flipped, dtype=anny32.dtype)).joints.double().numpy()
+    assert _sides_swapped(turned, truth, pairs, rotate=False).all()
+    np.testing.assert_allclose(_heading_error_deg(flipped, poses), 180.0, atol=1e-3)
+    # and the truth passes
+    assert not _sides_swapped(truth, truth, pairs, rotate=True).any()
+    assert not _sides_swapped(truth, truth, pairs, rotate=False).any()
+
+
+# -- recovering a known turn --------------------------------------------------------------------
+
+
+def test_fit_recovers_a_turn_from_its_own_rendering(
+    anny32: BodyModel, turn: tuple[Scene, Fitted]
+) -> None:
+    scene, fit = turn
+    track = fit.track
+    n = len(scene.obs)
+    assert track.poses.shape == (n, anny32.num_joints, 3) and track.translations.shape == (n, 3)
+    assert not track.failed.any()
+    assert not track.scale_known
+    errors = np.array([pa_mpjpe(fit.joints[i], scene.joints[i]) for i in range(n)])
+    # measured 15-27 mm (mean 20); the shape is fitted too; the issue's bar is a 25 mm mean
+    assert errors.mean() < 25.0 and errors.max() < 35.0, errors.round(1)
+    iou = np.array([silhouette_iou(fit.masks[i], scene.masks[i]) for i in range(n)])
+    # measured 0.85-0.93 (median 0.90); boundary pixels weigh heavily on a 190 px person
+    assert np.median(iou) > 0.88 and iou.min() > 0.8, iou.round(3)
+    np.testing.assert_allclose(track.silhouette_iou, iou, atol=1e-9)
+    # keypoints land within a few pixels (measured ≤ 1.5 px)
+    assert np.nanmax(track.keypoint_error) < 3.0, track.keypoint_error.round(2)
+
+
+def test_fit_never_flips_the_body_while_it_turns_away(
+    anny32: BodyModel, turn: tuple[Scene, Fitted]
+) -> None:
+    scene, fit = turn
+    _assert_never_flipped(anny32, scene, fit)
+    heading = _heading_error_deg(fit.track.poses, scene.poses)
+    assert heading.mean() < 10.0, heading.round(1)  # measured 3-10° per frame, mean 6°
+
+
+def test_swapped_back_view_keypoints_do_not_flip_the_fit(
+    anny32: BodyModel, swapped_turn: tuple[Scene, Fitted], turn: tuple[Scene, Fitted]
+) -> None:
+    scene, fit = swapped_turn
+    _assert_never_flipped(anny32, scene, fit)
+    n = len(scene.obs)
+    errors = np.array([pa_mpjpe(fit.joints[i], scene.joints[i]) for i in range(n)])
+    assert errors.mean() < 25.0 and errors.max() < 35.0, errors.round(1)
+    # the swapped frames are fitted as if the keypoints had been right
+    clean = turn[1]
+    swapped = scene.yaw_deg >= 140.0
+    difference = _heading_error_deg(fit.track.poses[swapped], clean.track.poses[swapped])
+    assert difference.max() < 5.0, difference.round(1)  # measured < 1°
+
+
+# -- evaluation, settings, errors, file -------------------------------------------------------
+
+
+def test_evaluate_fit_of_the_truth_is_perfect(anny32: BodyModel) -> None:
+    scene = _render_scene(anny32, _turn_poses(anny32, 3, 60.0))
+    shape = anny32.default_shape(1)[0]
+    kp_error, iou = evaluate_fit(anny32, shape, scene.poses, np.zeros((3, 3)), scene.obs)
+    np.testing.assert_array_equal(iou, 1.0)
+    assert kp_error.max() < 1e-3
+    # a shifted body loses both
+    kp_error, iou = evaluate_fit(anny32, shape, scene.poses, np.tile([0.05, 0.0, 0.0], (3, 1)),
+                                 scene.obs)  # fmt: skip
+    assert kp_error.min() > 4.0 and iou.max() < 0.9
+
+
+def test_height_must_be_in_metres() -> None:
+    with pytest.raises(ValueError, match="metres"):
+        PoseSettings(height=175)
+    assert PoseSettings(height=1.75).height == 1.75
+    with pytest.raises(ValueError, match="iterations"):
+        PoseSettings(iterations=0)
+
+
+def test_fit_needs_two_frames_with_a_person(anny32: BodyModel) -> None:
+    scene = _render_scene(anny32, _turn_poses(anny32, 1, 0.0))
+    obs = scene.obs
+    n = 3
+    masks = np.zeros((n, SIZE, SIZE), bool)
+    masks[1] = obs.masks[0]
+    keypoints = np.zeros((n, 33, 3), np.float32)
+    keypoints[1] = obs.keypoints[0]
+    lonely = Observations(masks=masks, keypoints=keypoints,
+                          face=np.full((n, 468, 3), np.nan, np.float32),
+                          no_person=np.array([True, False, True]),
+                          multiple_people=np.zeros(n, bool), camera=obs.camera,
+                          frame_indices=np.arange(n), timestamps=np.full(n, np.nan))  # fmt: skip
+    with pytest.raises(PoseFitError, match=r"at least 2 frames with a person.*found 1"):
+        fit_poses(anny32, lonely, SETTINGS)
+
+
+def test_pose_track_save_load_round_trip(tmp_path: Path) -> None:
+    rng = np.random.default_rng(0)
+    n, j = 4, 20
+    track = PoseTrack(
+        body_model="anny:test",
+        shape=rng.normal(size=6),
+        poses=rng.normal(size=(n, j, 3)),
+        translations=rng.normal(size=(n, 3)),
+        camera=_camera(),
+        frame_indices=np.array([0, 2, 4, 6]),
+        keypoint_error=np.array([1.0, np.nan, 2.0, 0.5]),
+        silhouette_iou=rng.uniform(size=n),
+        energy=rng.uniform(size=n),
+        failed=np.array([False, True, False, False]),
+        height=1.71,
+        scale_known=False,
+        seconds=12.5,
+        timings={"init": 1.0, "track": 2.5},
+    )
+    path = tmp_path / "poses.npz"
+    track.save(path)
+    back = PoseTrack.load(path)
+    for name in ("shape", "poses", "translations", "frame_indices", "keypoint_error",
+                 "silhouette_iou", "energy", "failed"):  # fmt: skip
+        np.testing.assert_array_equal(getattr(back, name), getattr(track, name), err_msg=name)
+    assert back.failed.dtype == np.bool_
+    for name in ("K", "R", "t"):
+        np.testing.assert_array_equal(getattr(back.camera, name), getattr(track.camera, name))
+    assert (back.camera.width, back.camera.height) == (SIZE, SIZE)
+    assert back.body_model == "anny:test" and back.height == 1.71 and back.seconds == 12.5
+    assert back.scale_known is False and back.timings == track.timings
+    replace(back, scale_known=True).save(path)
+    assert PoseTrack.load(path).scale_known is True
+    other = tmp_path / "other.npz"
+    np.savez(other, poses=np.zeros(3))
+    with pytest.raises(ValueError, match="not a monoavatar poses file"):
+        PoseTrack.load(other)
