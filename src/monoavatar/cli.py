@@ -157,6 +157,250 @@ def _run_body(args: argparse.Namespace) -> int:
     return 0
 
 
+def _user_errors() -> tuple[type[BaseException], ...]:
+    """Exceptions whose message is meant for the user (no traceback)."""
+    from monoavatar.body import BodyModelError
+    from monoavatar.camera import CameraError
+    from monoavatar.fit.pose import PoseFitError
+    from monoavatar.fit.shape import ShapeFitError
+    from monoavatar.io.errors import InputError
+    from monoavatar.perception.errors import PerceptionError
+    from monoavatar.reconstruct import ReconstructError
+    from monoavatar.texture.atlas import TextureError
+
+    return (BodyModelError, CameraError, PoseFitError, ShapeFitError, InputError,
+            PerceptionError, ReconstructError, TextureError)  # fmt: skip
+
+
+def _add_input_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("input", type=Path,
+                   help="a video file (mp4, mov, avi, webm), a folder of images, a "
+                   "People-Snapshot folder, or a folder written by 'monoavatar synth'")  # fmt: skip
+    p.add_argument("-o", "--output", required=True, type=Path,
+                   help="output folder (created; existing result files are replaced)")  # fmt: skip
+    p.add_argument("--frames", type=int, default=120,
+                   help="key-frames to use, spread evenly over the input (default 120)")
+    p.add_argument("--height", type=float, default=None, metavar="M",
+                   help="the person's height in metres, e.g. 1.75; without it the result is "
+                   "up to scale (an average height is assumed)")  # fmt: skip
+    p.add_argument("--focal", type=float, default=None, metavar="PX",
+                   help="focal length in pixels (default: a 68 degree diagonal field of view, "
+                   "typical of phone cameras; a synth or People-Snapshot folder brings its own)")
+    p.add_argument("--camera", type=str, default=None, metavar="JSON",
+                   help="a camera.json with the intrinsics instead of --focal")  # fmt: skip
+    p.add_argument("--perception", choices=("auto", "mediapipe", "ground-truth"),
+                   default="auto",
+                   help="masks and keypoints: auto (a synth or People-Snapshot folder's own, "
+                   "else mediapipe; default), mediapipe, or ground-truth")  # fmt: skip
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+
+
+def _add_reconstruct(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "reconstruct",
+        help="video of a person turning around -> textured, rigged avatar (glb, obj)",
+        description="Reconstruct a textured, rigged avatar from a video of a person turning "
+        "around in front of a static camera (dissertation Paper B): perception, pose fitting, "
+        "consensus shape with per-vertex offsets, texture, and export to avatar.glb (skinned, "
+        "textured glTF 2.0), avatar.obj/.mtl + texture.png, params.npz, report.json and "
+        "preview images. Stages that ran before on the same input and settings are reused "
+        "from the cache ($MONOAVATAR_CACHE, default ~/.cache/monoavatar).",
+    )
+    _add_input_options(p)
+    p.add_argument("--texture-size", type=int, default=1024, metavar="S",
+                   help="texture side in texels (default 1024)")  # fmt: skip
+    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
+                   help="where to compute (default cpu; every stage runs on the CPU)")  # fmt: skip
+    p.add_argument("--poses", choices=("fit", "ground-truth"), default="fit",
+                   help="fit the poses (default), or take a synth folder's true poses "
+                   "(benchmarks of the shape stage)")  # fmt: skip
+    p.add_argument("--no-offsets", action="store_true",
+                   help="fit the body model's shape only, without per-vertex offsets "
+                   "(the baseline of the benchmark)")  # fmt: skip
+    p.add_argument("--model", default="anny",
+                   help="body model: anny (default) or a path to your SMPL .npz/.pkl")  # fmt: skip
+    p.set_defaults(run=_run_reconstruct)
+
+
+def _run_reconstruct(args: argparse.Namespace) -> int:
+    from monoavatar.reconstruct import ReconstructConfig, reconstruct
+
+    config = ReconstructConfig(
+        frames=args.frames, height=args.height, focal=args.focal, camera=args.camera,
+        texture_size=args.texture_size, device=args.device, perception=args.perception,
+        poses=args.poses, body_model=args.model, offsets=not args.no_offsets,
+        progress=not args.quiet,
+    )  # fmt: skip
+    try:
+        result = reconstruct(args.input, args.output, config)
+    except _user_errors() as exc:
+        raise CliError(str(exc)) from exc
+    _print_summary(result.report, result.out_dir)
+    return 0
+
+
+def _print_summary(report: dict, out: Path) -> None:
+    t = report["timings"]
+    fit = report["fit"]
+    failed = int(sum(fit["failed"]))
+    print(f"avatar written to {out}/")
+    print("  avatar.glb  avatar.obj  texture.png  params.npz  report.json  preview/")
+    print(f"  key-frames: {report['input']['frames']}  failed: {failed}  "
+          f"median silhouette IoU: {fit['median_silhouette_iou']:.3f}")  # fmt: skip
+    print(f"  height: {report['scale']['height_m']:.3f} m ({report['scale']['note']})")
+    print("  time: " + ", ".join(f"{k} {v:.1f} s" for k, v in t.items())
+          + f"; total {report['seconds']:.1f} s")  # fmt: skip
+    if "ground_truth" in report:
+        print(f"  surface error against the ground truth: "
+              f"{report['ground_truth']['surface_error_mm']:.2f} mm")  # fmt: skip
+    for warning in report.get("warnings", [])[:5]:
+        print(f"  warning: {warning}")
+
+
+def _add_fit_poses(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "fit-poses",
+        help="fit a body shape and per-frame 3D poses to a video (Sec. B.3.2)",
+        description="Fit one body shape and a 3D pose per key-frame to the person masks and "
+        "2D keypoints of a video. Writes OUT/poses.npz (shape, poses (axis-angle radians), "
+        "translations (metres), camera, per-frame keypoint error, silhouette IoU and failure "
+        "flags) and OUT/overlays.png.",
+    )
+    _add_input_options(p)
+    p.set_defaults(run=_run_fit_poses)
+
+
+def _run_fit_poses(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from monoavatar.body import load_body_model
+    from monoavatar.reconstruct import ReconstructConfig, load_inputs, run_poses
+
+    config = ReconstructConfig(frames=args.frames, height=args.height, focal=args.focal,
+                               camera=args.camera, perception=args.perception,
+                               progress=not args.quiet)  # fmt: skip
+    try:
+        config.validate()
+        args.output.mkdir(parents=True, exist_ok=True)
+        inputs = load_inputs(args.input, config)
+        body = load_body_model("anny")
+        track = run_poses(body, inputs, config)
+    except OSError as exc:
+        raise CliError(f"cannot write to {args.output}: {exc}") from exc
+    except _user_errors() as exc:
+        raise CliError(str(exc)) from exc
+    track.save(args.output / "poses.npz")
+    good = ~track.failed
+    print(f"wrote {args.output / 'poses.npz'}: {len(track.poses)} frames, "
+          f"{int((~good).sum())} failed, median keypoint error "
+          f"{np.nanmedian(track.keypoint_error):.1f} px, median silhouette IoU "
+          f"{np.median(track.silhouette_iou):.3f}, {track.seconds:.1f} s; height "
+          f"{track.height:.2f} m ({'given' if track.scale_known else 'up to scale'})")  # fmt: skip
+    return 0
+
+
+def _add_animate(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "animate",
+        help="re-pose an avatar with a built-in motion or another video's poses (animated glb)",
+        description="Write the avatar of a 'monoavatar reconstruct' folder as an animated "
+        "glTF 2.0 binary: a built-in motion (walk, wave) or the poses of another params.npz.",
+    )
+    p.add_argument("avatar", type=Path, help="a folder written by 'monoavatar reconstruct'")
+    p.add_argument("-o", "--output", required=True, type=Path, help="the .glb to write")
+    p.add_argument("--motion", default="walk",
+                   help="walk (default), wave, or a path to a params.npz / poses.npz")  # fmt: skip
+    p.add_argument("--frames", type=int, default=None, help="frames of a built-in motion")
+    p.add_argument("--fps", type=float, default=30.0, help="frames per second (default 30)")
+    p.set_defaults(run=_run_animate)
+
+
+def _run_animate(args: argparse.Namespace) -> int:
+    from monoavatar.animate import animate_folder
+
+    try:
+        path = animate_folder(args.avatar, args.motion, args.output, frames=args.frames,
+                              fps=args.fps)  # fmt: skip
+    except (OSError, ValueError) as exc:
+        raise CliError(str(exc)) from exc
+    print(f"wrote {path}")
+    return 0
+
+
+def _add_demo(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "demo",
+        help="synthesise a short turn-around video and reconstruct an avatar from it",
+        description="The embedded default: render a synthetic person turning around "
+        "(monoavatar synth turnaround), reconstruct an avatar from the rendered video with "
+        "mediapipe perception, and print its surface error against the ground truth.",
+    )
+    p.add_argument("-o", "--output", required=True, type=Path, help="output folder")
+    p.add_argument("--frames", type=int, default=60, help="frames of the video (default 60)")
+    p.add_argument("--seed", type=int, default=3, help="subject and scene seed (default 3)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(run=_run_demo)
+
+
+def _run_demo(args: argparse.Namespace) -> int:
+    from monoavatar.reconstruct import ReconstructConfig, reconstruct
+    from monoavatar.synth.scene import SynthConfig, SynthError, generate
+
+    scene = args.output / "input"
+    try:
+        if not (scene / "scene.json").is_file():
+            generate(scene, SynthConfig(kind="turnaround", frames=args.frames, seed=args.seed),
+                     progress=not args.quiet)  # fmt: skip
+        config = ReconstructConfig(frames=args.frames, perception="mediapipe",
+                                   progress=not args.quiet)  # fmt: skip
+        result = reconstruct(scene, args.output / "avatar",
+                             config)  # fmt: skip
+    except SynthError as exc:
+        raise CliError(str(exc)) from exc
+    except _user_errors() as exc:
+        raise CliError(str(exc)) from exc
+    print(f"input video: {scene / 'video.mp4'} (ground truth in {scene / 'gt'})")
+    _print_summary(result.report, result.out_dir)
+    return 0
+
+
+def _add_bench(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "bench",
+        help="measure accuracy and speed on a fixed synthetic suite, beside the dissertation",
+        description="Generate the fixed, versioned suite of synthetic turn-around subjects "
+        "(minimal clothing and clothed, from fixed seeds; cached in OUT/scenes), reconstruct "
+        "each with mediapipe perception and fitted poses, and with ground-truth poses, and "
+        "write results.json, results.md (a table beside Table B.1 of the dissertation) and "
+        "per-vertex error heat maps. The full suite takes about 30 minutes on 2 CPU cores.",
+    )
+    p.add_argument("-o", "--output", type=Path, default=Path("out/bench"),
+                   help="output folder (default out/bench)")  # fmt: skip
+    p.add_argument("--quick", action="store_true",
+                   help="one small subject with few frames: a smoke test of a few minutes")
+    p.add_argument("--subjects", nargs="+", default=None, metavar="NAME",
+                   help="run only these suite subjects")  # fmt: skip
+    p.add_argument("--no-gt-poses", action="store_true",
+                   help="skip the runs with ground-truth poses")  # fmt: skip
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(run=_run_bench)
+
+
+def _run_bench(args: argparse.Namespace) -> int:
+    from monoavatar.bench.runner import run_bench
+    from monoavatar.bench.suite import SuiteError
+
+    try:
+        run_bench(args.output, quick=args.quick, subjects=args.subjects,
+                  gt_poses=not args.no_gt_poses, progress=not args.quiet)  # fmt: skip
+    except SuiteError as exc:
+        raise CliError(str(exc)) from exc
+    except _user_errors() as exc:
+        raise CliError(str(exc)) from exc
+    print(f"results: {args.output / 'results.md'} and {args.output / 'results.json'}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="monoavatar",
@@ -164,6 +408,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"monoavatar {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    _add_demo(sub)
+    _add_reconstruct(sub)
+    _add_fit_poses(sub)
+    _add_animate(sub)
+    _add_bench(sub)
     _add_synth(sub)
     _add_body(sub)
     return parser

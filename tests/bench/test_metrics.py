@@ -1,0 +1,114 @@
+"""Benchmark metrics: known cases for the surface error, and file reading. A reconstruction
+folder measured end to end against its scene is in test_runner.py (one run serves both)."""
+
+import numpy as np
+import pytest
+import torch
+from scipy.spatial.transform import Rotation
+
+from monoavatar.bench.metrics import (
+    MetricsError,
+    _sh_to_world,
+    body_model_name,
+    heldout_frames,
+    read_obj,
+    read_reconstruction,
+    surface_metrics,
+)
+from monoavatar.render import directional_light_sh, vertex_normals
+
+from .fake import write_fake_reconstruction
+
+
+@pytest.fixture(scope="module")
+def coarse_truth(tiny_scene, anny32):
+    """The true clothed canonical mesh at the body model's resolution (its first vertices)."""
+    _, _, folder = tiny_scene
+    v, _ = read_obj(folder / "gt" / "subject_000" / "canonical.obj")
+    return v[: anny32.num_vertices], anny32.faces.numpy().astype(np.int64)
+
+
+def test_read_obj_takes_positions_and_faces_only(tmp_path):
+    path = tmp_path / "quad.obj"
+    path.write_text(
+        "# comment\nmtllib x.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\n"
+        "vn 0 0 1\nf 1/1/1 2/2/1 3/1/1 4/2/1\nf -4 -3 -1\n"
+    )
+    v, f = read_obj(path)
+    assert v.shape == (4, 3) and v.dtype == np.float64
+    assert f.tolist() == [[0, 1, 2], [0, 2, 3], [0, 1, 3]]
+    (tmp_path / "empty.obj").write_text("# nothing\n")
+    with pytest.raises(MetricsError, match="no vertices"):
+        read_obj(tmp_path / "empty.obj")
+
+
+def test_body_model_names():
+    assert body_model_name("anny-0.6.2:local_changes=none") == "anny"
+    assert body_model_name("anny-0.6.2:local_changes=all") == "anny-local"
+    assert body_model_name("anny-local") == "anny-local"
+    with pytest.raises(MetricsError, match="smpl"):
+        body_model_name("smpl:basicModel_neutral.pkl")
+
+
+def test_scaled_moved_truth_has_zero_error(coarse_truth):
+    v, f = coarse_truth
+    rot = Rotation.from_euler("y", 8, degrees=True).as_matrix()
+    moved = 1.04 * v @ rot.T + np.array([0.05, -0.02, 0.1])
+    metrics, heat = surface_metrics(moved, f, v, f)
+    assert metrics.mean_mm < 1e-3
+    assert metrics.std_mm < 1e-3
+    assert metrics.scale == pytest.approx(1 / 1.04, rel=1e-6)
+    np.testing.assert_allclose(heat.vertices, v, atol=1e-7)
+    assert heat.errors.shape == (len(v),)
+
+
+def test_normal_offset_of_two_millimetres(coarse_truth):
+    """Every vertex moved 2 mm along its normal. Each moved vertex lies within 2 mm of the true
+    surface (its origin is on it), and exactly 2 mm where the surface is locally flat; in
+    creases (armpits, between fingers) the other side comes closer, so the mean is a little
+    below 2 mm. Scale alignment shrinks the inflated body a little and absorbs a part of the
+    offset (on a sphere it would absorb all of it)."""
+    v, f = coarse_truth
+    n = vertex_normals(torch.as_tensor(v), torch.as_tensor(f)).numpy()
+    rigid, heat = surface_metrics(v + 0.002 * n, f, v, f, with_scale=False)
+    assert 1.7 < rigid.mean_mm <= 2.0
+    # the rigid ICP still moves the inflated body by a fraction of a millimetre
+    assert np.median(heat.errors) == pytest.approx(0.002, abs=2.5e-4)
+    scaled, _ = surface_metrics(v + 0.002 * n, f, v, f)
+    assert 1.5 < scaled.mean_mm <= rigid.mean_mm + 1e-9
+    assert 0.998 < scaled.scale < 1.0
+
+
+def test_heldout_frames():
+    assert heldout_frames(8, np.array([0, 4, 7]), 10).tolist() == [1, 2, 3, 5, 6]
+    held = heldout_frames(120, np.arange(0, 120, 4), 20)
+    assert len(held) == 20 and not set(held) & set(range(0, 120, 4))
+    assert heldout_frames(3, np.array([0, 1, 2]), 5).size == 0
+
+
+def test_reconstruction_folder_is_read(tiny_scene, anny32, anny_local, tmp_path):
+    _, _, folder = tiny_scene
+    write_fake_reconstruction(folder, tmp_path / "rec", anny32, anny_local, 2, "coarse")
+    rec = read_reconstruction(tmp_path / "rec")
+    assert rec.vertices.shape == (anny32.num_vertices, 3)
+    assert rec.offsets.shape == (anny32.num_vertices, 3)
+    assert rec.frame_indices.tolist() == [0, 3]
+    assert rec.texture is not None and rec.texture.dtype == np.uint8
+    assert rec.texture_is_albedo
+    (tmp_path / "rec" / "params.npz").unlink()
+    with pytest.raises(MetricsError, match="params.npz missing"):
+        read_reconstruction(tmp_path / "rec")
+
+
+def test_lighting_follows_the_camera_between_worlds():
+    """A light given in one camera's world is expressed in another's so that it keeps its
+    direction relative to the camera (a point light's SH maps to the rotated point light's)."""
+    r_from = Rotation.from_euler("xyz", [10, 70, -5], degrees=True).as_matrix()
+    r_to = Rotation.from_euler("y", -20, degrees=True).as_matrix()
+    towards = np.array([0.3, 0.8, 0.5])
+    sh = directional_light_sh(towards, [1.0, 0.8, 0.6])
+    moved = _sh_to_world(sh, r_from, r_to)
+    # the light's direction in camera axes is r_from @ towards; in the target world: r_to.T @ it
+    expected = directional_light_sh(r_to.T @ r_from @ towards, [1.0, 0.8, 0.6])
+    np.testing.assert_allclose(moved, expected, atol=1e-10)
+    np.testing.assert_array_equal(_sh_to_world(sh, r_to, r_to), sh)

@@ -1,0 +1,31 @@
+"""``monoavatar bench --quick`` with the real reconstruction: a smoke test with loose bounds
+(one small subject, few frames; the figures of record come from the full suite)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from monoavatar.cli import main
+
+
+def test_bench_quick_end_to_end(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    monkeypatch.setenv("MONOAVATAR_CACHE", str(tmp_path / "cache"))
+    out = tmp_path / "bench"
+    assert main(["bench", "--quick", "-o", str(out), "--quiet"]) == 0
+    results = json.loads((out / "results.json").read_text())
+    table = (out / "results.md").read_text()
+    assert "5.37 (BUFF)" in table and "3.40 (BUFF)" in table  # the dissertation beside us
+    runs = results["runs"]
+    assert {r["mode"] for r in runs} == {"estimated", "gt-poses"}
+    for run in runs:
+        assert run["status"] == "ok", run.get("error")
+        metrics = run["metrics"]
+        assert 0.0 < metrics["surface"]["mean_mm"] < 40.0  # a person-shaped avatar
+        assert metrics["silhouette_iou"] > 0.5
+        assert metrics["timings"]["poses"] > 0.0
+    assert list((out / "heatmaps").glob("*.png"))
+    assert "results.md" in capsys.readouterr().out

@@ -1,0 +1,75 @@
+"""run_bench end to end on a tiny suite with a fake reconstruction."""
+
+import json
+
+import pytest
+
+from monoavatar.bench import runner
+from monoavatar.bench.suite import SUITE_VERSION, BenchSuite, SuiteError
+
+from .fake import FakeReconstruct
+
+
+def test_run_bench_with_fake_reconstruction(tiny_scene, anny32, anny_local, tmp_path,
+                                            monkeypatch, capsys):  # fmt: skip
+    subject, scenes, scene_folder = tiny_scene
+    tiny = BenchSuite(SUITE_VERSION, "tiny", (subject,))
+    monkeypatch.setattr(runner, "get_suite", lambda quick=False: tiny)
+    fake = FakeReconstruct(anny32, anny_local, avatar="fine", fail_modes=("ground-truth",))
+    out = tmp_path / "bench"
+    results = runner.run_bench(out, reconstruct=fake, scenes_dir=scenes, progress=True)
+
+    # both modes were asked for, with the subject's key-frames and a private cache
+    assert len(fake.calls) == 2
+    (scene_in, run_dir, config), (_, _, config_gt) = fake.calls
+    assert scene_in == scene_folder and run_dir == out / "runs" / subject.name / "estimated"
+    assert (config.frames, config.perception, config.poses) == (subject.keyframes,
+                                                                "mediapipe", "fit")  # fmt: skip
+    assert (config_gt.perception, config_gt.poses) == ("ground-truth", "ground-truth")
+    assert config.texture_size == subject.texture_size and config.height is None
+
+    failed = results.run(subject.name, "gt-poses")
+    assert failed is not None and failed.status == "failed" and "fake failure" in failed.error
+
+    # The fake wrote the true clothed mesh as avatar.obj, the true pose of each key-frame and
+    # the true albedo: zero surface error, a body-only error of the clothing's size, high IoU.
+    ok = results.run(subject.name, "estimated")
+    assert ok is not None and ok.status == "ok" and ok.metrics is not None
+    m = ok.metrics
+    assert m.surface.mean_mm < 1e-6 and m.surface.std_mm < 1e-6
+    assert m.surface.scale == pytest.approx(1.0, abs=1e-9)
+    assert m.body_only_mm is not None and 2.0 < m.body_only_mm < 20.0  # t-shirt and shorts
+    assert m.shape_only_mm is None  # the fake reports none
+    assert m.pa_mpjpe_mm < 30.0  # skeletons of Anny with and without local changes differ
+    assert m.silhouette_iou > 0.85 and m.silhouette_iou_min <= m.silhouette_iou
+    assert m.texture_lighting == "estimated"  # albedo with the fake's (true) lighting_sh
+    assert m.heldout_frames == subject.frames - subject.keyframes
+    assert m.psnr_db is not None and m.psnr_db > 18.0
+    assert m.psnr_overlap_db is not None and m.psnr_overlap_db >= m.psnr_db
+    assert m.keyframes == subject.keyframes
+    assert m.timings["shape"] == 2.5 and m.peak_memory_mb == 321.0
+    assert m.warnings == ["UserWarning: fake"]
+    assert ok.wall_seconds > 0 and ok.peak_rss_mb is not None and ok.peak_rss_mb > 0
+
+    for name in ("results.json", "results.md"):
+        assert (out / name).is_file()
+    assert ok.heatmap_png is not None and ok.heatmap_png.is_file()
+    assert ok.heatmap_ply is not None and ok.heatmap_ply.is_file()
+    data = json.loads((out / "results.json").read_text())
+    assert data["suite"]["version"] == SUITE_VERSION
+    run = data["subjects"][0]["runs"]["estimated"]
+    assert run["heatmap_png"] == f"heatmaps/{subject.name}-estimated.png"
+    assert run["metrics"]["texture_psnr_db"] == pytest.approx(m.psnr_db)
+    assert data["aggregate"]["estimated"]["all"]["surface_error_mm"] < 1e-6
+    assert data["aggregate"]["gt-poses"]["all"]["failed"] == 1
+    assert not (out / ".cache").exists()
+    printed = capsys.readouterr().out
+    assert "5.37 (BUFF)" in printed and printed.strip() == results.table.strip()
+
+
+def test_unknown_subject_is_refused_before_any_work(tmp_path):
+    def never(*args):
+        raise AssertionError("reconstruct must not run")
+
+    with pytest.raises(SuiteError, match="nobody"):
+        runner.run_bench(tmp_path, subjects=["nobody"], reconstruct=never, progress=False)

@@ -1,0 +1,155 @@
+"""End-to-end ``reconstruct`` on a tiny synthetic turn-around, and its failure modes."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from scipy.spatial import cKDTree
+
+from monoavatar.cli import main
+from monoavatar.fit.pose import PoseSettings
+from monoavatar.fit.shape import ShapeSettings
+from monoavatar.io.export_mesh import write_mp4
+from monoavatar.reconstruct import ReconstructConfig, ReconstructError, reconstruct
+from monoavatar.synth.scene import SynthConfig, generate
+from monoavatar.texture.backproject import TextureSettings
+from tests.io.gltf_reference import (
+    Glb,
+    rodrigues,
+    skin_vertices,
+    validate,
+    validator_available,
+)
+
+OUTPUTS = ("avatar.glb", "avatar.obj", "avatar.mtl", "texture.png", "params.npz", "report.json")
+
+
+@pytest.fixture(scope="module")
+def tiny_scene(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    folder = tmp_path_factory.mktemp("scene") / "turn"
+    generate(folder, SynthConfig(kind="turnaround", frames=24, seed=5, width=256, height=256,
+                                 texture_size=128, clothing="tight"), progress=False)  # fmt: skip
+    return folder
+
+
+def _fast_config(**kw: object) -> ReconstructConfig:
+    return ReconstructConfig(
+        frames=24, texture_size=64, progress=False, evaluate=False,
+        pose=PoseSettings(iterations=12, init_iterations=20, silhouette_points=300,
+                          boundary_points=80),
+        shape=ShapeSettings(rounds=2, rays_per_frame=80),
+        texture=TextureSettings(dilation=2),
+        **kw,  # type: ignore[arg-type]
+    )  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def tiny_result(tiny_scene: Path, tmp_path_factory: pytest.TempPathFactory,
+                monkeypatch_module: pytest.MonkeyPatch):  # fmt: skip
+    out = tmp_path_factory.mktemp("rec") / "avatar"
+    return reconstruct(tiny_scene, out, _fast_config())
+
+
+@pytest.fixture(scope="module")
+def monkeypatch_module(tmp_path_factory: pytest.TempPathFactory):
+    mp = pytest.MonkeyPatch()
+    mp.setenv("MONOAVATAR_CACHE", str(tmp_path_factory.mktemp("cache")))
+    yield mp
+    mp.undo()
+
+
+def test_outputs_complete(tiny_result) -> None:
+    out = tiny_result.out_dir
+    for name in OUTPUTS:
+        assert (out / name).is_file(), name
+    assert (out / "preview" / "overlays.png").is_file()
+    assert (out / "preview" / "turntable.png").is_file()
+    assert not list(out.glob(".staging-*")) and not list(out.glob(".*.tmp"))
+    report = json.loads((out / "report.json").read_text())
+    assert set(report["timings"]) == {"perception", "poses", "shape", "texture", "export"}
+    assert report["scale"]["known"] is False  # no --height
+    assert len(report["fit"]["silhouette_iou"]) == 24
+    assert report["input"]["kind"] == "synth"
+
+
+def test_fit_is_plausible(tiny_result) -> None:
+    iou = np.asarray(tiny_result.report["fit"]["silhouette_iou"])
+    assert np.median(iou) > 0.6
+
+
+def test_params_pose_the_same_avatar_as_the_glb(tiny_result, anny32) -> None:
+    """params.npz posed with the body model == the glb skinned in plain NumPy at the same
+    pose (the glb keeps 4 influences: compare where that is exact, and overall)."""
+    out = tiny_result.out_dir
+    with np.load(out / "params.npz") as p:
+        assert str(p["body_model"]) == anny32.identity
+        shape, offsets, poses = p["shape"], p["offsets"], p["poses"]
+        assert offsets.shape == (anny32.num_vertices, 3)
+        assert poses.shape == (24, anny32.num_joints, 3)
+    glb = Glb.load(out / "avatar.glb")
+    pose = poses[3].copy()
+    pose[0] = 0.0
+    joints = glb.gltf.skins[0].joints
+    posed_glb = skin_vertices(glb, {joints[j]: rodrigues(pose[j]) for j in range(len(joints))})
+    rest_glb = glb.attribute("POSITION").astype(np.float64)
+    with torch.no_grad():
+        rest = anny32(shape=torch.as_tensor(shape, dtype=torch.float32)[None],
+                      offsets=torch.as_tensor(offsets, dtype=torch.float32)).vertices[0]
+    distance, source = cKDTree(rest.numpy()).query(rest_glb)  # glb vertices split at UV seams
+    assert distance.max() < 1e-5
+    with torch.no_grad():
+        ours = anny32(shape=torch.as_tensor(shape, dtype=torch.float32)[None],
+                      pose=torch.as_tensor(pose, dtype=torch.float32)[None],
+                      offsets=torch.as_tensor(offsets, dtype=torch.float32)).vertices[0]
+    diff = np.linalg.norm(posed_glb - ours.numpy()[source], axis=1)
+    assert np.median(diff) < 1e-4
+    assert np.percentile(diff, 99) < 5e-3
+
+
+@pytest.mark.skipif(validator_available() is not None, reason=str(validator_available()))
+def test_glb_validates(tiny_result) -> None:
+    report = validate(tiny_result.out_dir / "avatar.glb")
+    assert report["issues"]["numErrors"] == 0
+
+
+def test_animate_cli(tiny_result, tmp_path: Path) -> None:
+    target = tmp_path / "walk.glb"
+    assert main(["animate", str(tiny_result.out_dir), "-o", str(target), "--frames", "8"]) == 0
+    glb = Glb.load(target)
+    assert len(glb.gltf.animations) == 1
+
+
+def test_no_person_video_fails_cleanly(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                       capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    monkeypatch.setenv("MONOAVATAR_CACHE", str(tmp_path / "cache"))
+    video = tmp_path / "empty_room.mp4"
+    write_mp4(video, [np.full((96, 96, 3), 128, np.uint8)] * 6, 10.0)
+    out = tmp_path / "out"
+    code = main(["reconstruct", str(video), "-o", str(out), "--frames", "6", "--quiet"])
+    assert code == 2
+    assert "person" in capsys.readouterr().err.lower()
+    assert not any(out.iterdir())
+
+
+def test_unwritable_output_fails_before_work(tiny_scene: Path, tmp_path: Path) -> None:
+    blocker = tmp_path / "a_file"
+    blocker.write_text("not a folder")
+    with pytest.raises(ReconstructError, match="cannot write"):
+        reconstruct(tiny_scene, blocker / "out", _fast_config())
+
+
+def test_bad_options_are_explained(tiny_scene: Path, tmp_path: Path,
+                                   capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    assert main(["reconstruct", str(tiny_scene), "-o", str(tmp_path / "o"), "--height",
+                 "175"]) == 2  # fmt: skip
+    assert "metres" in capsys.readouterr().err
+    assert main(["reconstruct", str(tmp_path / "missing.mp4"), "-o", str(tmp_path / "o")]) == 2
+    assert "missing.mp4" in capsys.readouterr().err
+    config = _fast_config()
+    config.frames = 1
+    with pytest.raises(ReconstructError, match="at least 2"):
+        reconstruct(tiny_scene, tmp_path / "o2", config)
