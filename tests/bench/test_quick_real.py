@@ -19,13 +19,13 @@ def test_bench_quick_end_to_end(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
     results = json.loads((out / "results.json").read_text())
     table = (out / "results.md").read_text()
     assert "5.37 (BUFF)" in table and "3.40 (BUFF)" in table  # the dissertation beside us
-    runs = results["runs"]
-    assert {r["mode"] for r in runs} == {"estimated", "gt-poses"}
-    for run in runs:
+    (subject,) = results["subjects"]
+    assert set(subject["runs"]) == {"estimated", "gt-poses"}
+    for run in subject["runs"].values():
         assert run["status"] == "ok", run.get("error")
         metrics = run["metrics"]
-        assert 0.0 < metrics["surface"]["mean_mm"] < 40.0  # a person-shaped avatar
+        assert 0.0 < metrics["surface_error_mm"] < 40.0  # a person-shaped avatar
         assert metrics["silhouette_iou"] > 0.5
-        assert metrics["timings"]["poses"] > 0.0
+        assert metrics["timings_s"]["shape"] > 0.0
     assert list((out / "heatmaps").glob("*.png"))
     assert "results.md" in capsys.readouterr().out
