@@ -307,8 +307,10 @@ def run_texture(body: BodyModel, inputs: Inputs, track: PoseTrack, shape: Canoni
     from monoavatar.texture.lighting import estimate_sh
 
     good = np.flatnonzero(~track.failed)
+    translations = track.translations[good].copy()
+    translations[shape.frames] += shape.frame_shifts  # the shape fit's per-frame corrections
     posed = posed_avatar(body, shape.shape, shape.offsets, track.poses[good],
-                         track.translations[good])  # fmt: skip
+                         translations)  # fmt: skip
     images = inputs.frames.images[good]
     masks = inputs.observations.masks[good]
     sh = estimate_sh(posed[::4], body.faces, images[::4], masks[::4], track.camera)

@@ -24,7 +24,7 @@ import torch
 from scipy.spatial import cKDTree
 from torch import Tensor
 
-from monoavatar.body import BodyModel, lbs
+from monoavatar.body import BodyModel
 from monoavatar.camera import PinholeCamera
 from monoavatar.render.renders import vertex_normals
 
@@ -214,7 +214,7 @@ def unpose_lines(
     directions: np.ndarray,
     plane_normals: np.ndarray,
     vertex_ids: np.ndarray,
-    transforms: Tensor,
+    transforms: Tensor | np.ndarray,
     correctives: Tensor | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Map posed rays, and planes through them, into the canonical pose by the inverse blended
@@ -229,21 +229,20 @@ def unpose_lines(
         Plücker moments (N, 3) and unit directions (N, 3) of the canonical lines, and the
         canonical unit plane normals (N, 3) (``Lᵀ n``, L the blended linear part).
     """
+    tf = np.asarray(torch.as_tensor(transforms).detach().cpu().double().numpy())
     ids = torch.as_tensor(vertex_ids, dtype=torch.long)
-    weights = body.skin_weights[ids].to(torch.float64)
-    blended = lbs.blend_transforms(weights, transforms.to(torch.float64)[None])[0]
-    inverse = lbs.invert_affine(blended)
-    o = torch.as_tensor(np.broadcast_to(origin, directions.shape).copy(), dtype=torch.float64)
-    d = torch.as_tensor(directions, dtype=torch.float64)
-    o_c = lbs.transform_points(inverse, o)
+    weights = body.skin_weights[ids].detach().cpu().double().numpy()
+    blended = (weights @ tf[:, :3, :].reshape(len(tf), 12)).reshape(-1, 3, 4)
+    linear, shift = blended[..., :3], blended[..., 3]
+    inverse = np.linalg.inv(linear)
+    o_c = np.einsum("nij,nj->ni", inverse, origin - shift)
     if correctives is not None:
-        o_c = o_c - correctives.to(torch.float64)[ids]
-    d_c = lbs.transform_directions(inverse, d)
-    d_c = d_c / d_c.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-    p = torch.as_tensor(plane_normals, dtype=torch.float64)
-    p_c = (blended[:, :3, :3].transpose(-1, -2) @ p.unsqueeze(-1)).squeeze(-1)
-    p_c = p_c / p_c.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-    return torch.cross(o_c, d_c, dim=-1).numpy(), d_c.numpy(), p_c.numpy()
+        o_c = o_c - correctives[ids].detach().cpu().double().numpy()
+    d_c = np.einsum("nij,nj->ni", inverse, directions)
+    d_c /= np.linalg.norm(d_c, axis=1, keepdims=True)
+    p_c = np.einsum("nji,nj->ni", linear, plane_normals)
+    p_c /= np.linalg.norm(p_c, axis=1, keepdims=True)
+    return np.cross(o_c, d_c), d_c, p_c
 
 
 def frame_shift(
@@ -272,9 +271,9 @@ def frame_shift(
     return np.asarray(coef @ axes)
 
 
-def _pixel_directions(camera: PinholeCamera, points: np.ndarray) -> np.ndarray:
+def _pixel_directions(camera: PinholeCamera, k_inv: np.ndarray, points: np.ndarray) -> np.ndarray:
     homo = np.hstack([points, np.ones((len(points), 1))])
-    d = homo @ np.linalg.inv(camera.K).T @ camera.R  # Rᵀ d_cam for row vectors
+    d = homo @ k_inv.T @ camera.R  # Rᵀ d_cam for row vectors
     return np.asarray(d / np.linalg.norm(d, axis=1, keepdims=True))
 
 
@@ -333,6 +332,8 @@ def silhouette_correspondences(
     rest_normals = vertex_normals(canonical, body.faces)
     centre = camera.center
     shifts = np.zeros((n_frames, 3))
+    k_inv = np.linalg.inv(camera.K)
+    tf_all = transforms.detach().cpu().double().numpy()
     parts: list[tuple[np.ndarray, ...]] = []
     for start in range(0, n_frames, chunk):
         stop = min(start + chunk, n_frames)
@@ -360,7 +361,7 @@ def silhouette_correspondences(
             if len(si) == 0:
                 continue
             vids = ids[ci]
-            rays = _pixel_directions(camera, s.points[si])
+            rays = _pixel_directions(camera, k_inv, s.points[si])
             planes = _silhouette_planes(camera, s.points[si], s.normals[si])
             if shift_sigma is not None:
                 shifts[f] = frame_shift(
@@ -368,9 +369,7 @@ def silhouette_correspondences(
                 )
             corr = None if correctives is None else correctives[k]
             # posing then shifting by Δt equals unposing rays shifted by −Δt
-            m, n, p = unpose_lines(
-                body, centre - shifts[f], rays, planes, vids, transforms[f], corr
-            )
+            m, n, p = unpose_lines(body, centre - shifts[f], rays, planes, vids, tf_all[f], corr)
             parts.append((vids, m, n, p, np.full(len(vids), f, np.int64), dist))
     if not parts:
         z3 = np.zeros((0, 3))
