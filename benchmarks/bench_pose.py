@@ -76,8 +76,6 @@ def main() -> None:
     gt_j = gt_out.joints.double().numpy()
     err = [pa_mpjpe(pred_j[i], gt_j[i]) for i in range(len(obs))]
     flip = flips(pred_j, gt_j, body.joint_names)
-    from monoavatar.io.synth_scene import SynthGroundTruth  # noqa: F401
-
     _, iou_gt = evaluate_fit(body, torch.as_tensor(track.shape), track.poses,
                              track.translations, scene.observations)  # fmt: skip
     print(f"frames {len(obs)}  perception {args.perception}")

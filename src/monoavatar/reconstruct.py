@@ -46,7 +46,7 @@ from PIL import Image
 
 from monoavatar.body import BodyModel, load_body_model
 from monoavatar.camera import PinholeCamera
-from monoavatar.fit.pose import PoseSettings, PoseTrack, evaluate_fit, fit_poses
+from monoavatar.fit.pose import PoseSettings, PoseTrack, evaluate_fit, fit_poses, world_up
 from monoavatar.fit.shape import CanonicalShape, ShapeSettings, fit_consensus_shape
 from monoavatar.io.frames import Frames, FrameSelection
 from monoavatar.perception.observations import Observations
@@ -195,8 +195,9 @@ def load_inputs(path: str | Path, config: ReconstructConfig) -> Inputs:
 
 
 def _stage_dir() -> Path:
-    root = Path(os.environ.get("MONOAVATAR_CACHE", Path.home() / ".cache" / "monoavatar"))
-    return root / "stages"
+    from monoavatar.perception.cache import cache_root
+
+    return cache_root() / "stages"
 
 
 def _key(*parts: object) -> str:
@@ -334,11 +335,6 @@ def _check_output(out_dir: Path) -> None:
         raise ReconstructError(f"cannot write to the output folder {out_dir}: {exc}") from exc
 
 
-def _world_up(camera: PinholeCamera) -> np.ndarray:
-    up: np.ndarray = camera.R.T @ np.array([0.0, -1.0, 0.0])
-    return up / np.linalg.norm(up)
-
-
 def _render_avatar(vertices: np.ndarray, body: BodyModel, texture: np.ndarray,
                    camera: PinholeCamera, background: np.ndarray,
                    sh: np.ndarray | None = None) -> np.ndarray:  # fmt: skip
@@ -433,7 +429,7 @@ def _write_outputs(out_dir: Path, body: BodyModel, inputs: Inputs, track: PoseTr
             frame_indices=inputs.observations.frame_indices,
             camera_K=cam.K, camera_R=cam.R, camera_t=cam.t,
             image_size=np.array([cam.width, cam.height]),
-            world_up=_world_up(cam),
+            world_up=world_up(cam),
             height=np.array(report["scale"]["height_m"]),
             scale_known=np.array(report["scale"]["known"]),
             lighting_sh=sh,
@@ -511,7 +507,7 @@ def reconstruct(input_path: str | Path, out_dir: str | Path,
         "input": {"path": str(input_path), "kind": inputs.kind, "frames": len(obs),
                   "frame_indices": obs.frame_indices, "image_size": list(obs.image_size[::-1]),
                   "keypoints": obs.keypoint_source},  # fmt: skip
-        "settings": {k: v for k, v in asdict(config).items()},
+        "settings": asdict(config),
         "scale": {
             "known": bool(config.height is not None or config.poses == "ground-truth"),
             "height_m": height,

@@ -34,7 +34,7 @@ import json
 import math
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -398,7 +398,7 @@ def _lbfgs(params: list[Tensor], closure: Callable[[], Tensor], iterations: int)
 # -- initial placement ---------------------------------------------------------------------
 
 
-def _world_up(camera: PinholeCamera) -> np.ndarray:
+def world_up(camera: PinholeCamera) -> np.ndarray:
     """The world direction that appears as 'up' in the image (−y of the camera)."""
     up: np.ndarray = camera.R.T @ np.array([0.0, -1.0, 0.0])
     return up / np.linalg.norm(up)
@@ -447,7 +447,7 @@ def _place(body_height: float, rest_root: np.ndarray, rest_mid: float, mask: np.
     origin, direction = camera.pixel_rays(torch.from_numpy(centre[None]))
     d_cam = camera.R @ direction[0].numpy()
     target = origin[0].numpy() + direction[0].numpy() * depth / d_cam[2]
-    up = _world_up(camera)
+    up = world_up(camera)
     facing = -camera.R.T @ camera.t - target  # towards the camera centre
     root = _root_rotation(up, _turn(up, yaw) @ facing)
     # posed root joint = rest root + translation; aim the body's vertical middle (``rest_mid``,
@@ -742,7 +742,7 @@ def _refit_frame(ctx: _Context, sub: _Subset, frame: _Frames, pose: np.ndarray,
     the keypoints' left and right exchanged; keep what explains the frame best (judged on the
     keypoints as detected, either way round)."""
     best = (pose, trans, value)
-    up = _world_up(ctx.camera)
+    up = world_up(ctx.camera)
     root = lbs.axis_angle_to_matrix(torch.from_numpy(pose[0])).numpy()
     turned = pose.copy()
     turned[0] = lbs.matrix_to_axis_angle(torch.from_numpy(_turn(up, math.pi) @ root)).numpy()
@@ -792,7 +792,3 @@ def evaluate_fit(
             iou[i] = np.logical_and(model, obs.masks[i]).sum() / union if union else 0.0
     return kp_err, iou
 
-
-def settings_dict(settings: PoseSettings) -> dict[str, object]:
-    """The settings as a JSON-ready dictionary (for reports)."""
-    return asdict(settings)

@@ -54,6 +54,7 @@ from torch import Tensor
 
 from monoavatar.body import REGIONS, BodyModel, lbs
 from monoavatar.camera import PinholeCamera
+from monoavatar.fit.energies import geman_mcclure
 from monoavatar.fit.laplacian import edge_laplacian, symmetry_operators, uniform_laplacian
 from monoavatar.fit.rays import (
     BoundarySamples,
@@ -261,13 +262,6 @@ class CanonicalShape:
 
 
 # -- energy terms ---------------------------------------------------------------------------
-
-
-def geman_mcclure(squared: Tensor, sigma: float) -> Tensor:
-    """Geman-McClure penalty ``ρ = σ² r² / (σ² + r²)`` of squared residuals ``r²``: ≈ r² for
-    small residuals, bounded by σ² for outliers."""
-    s2 = sigma * sigma
-    return s2 * squared / (s2 + squared)
 
 
 def line_data_energy(vertices: Tensor, moment: Tensor, direction: Tensor, sigma: float) -> Tensor:
