@@ -12,9 +12,9 @@ Stages (each a function from typed inputs to a typed result, timed in ``report.j
    ``report.json``, ``preview/``.
 
 Outputs are written only after every stage has succeeded, each file under a temporary name
-renamed into place, so a failure leaves no partial output. The pose and shape stages are cached
-(``$MONOAVATAR_CACHE/stages``) by the content of their inputs and settings: a second run with
-the same input and settings resumes after them.
+renamed into place, so a failure leaves no partial output. The pose stage is cached
+(``$MONOAVATAR_CACHE/stages``) by the content of its inputs and settings, as perception is: a
+second run with the same input and settings resumes after it.
 
 ``params.npz`` keys: ``format``; ``body_model`` (identity string); ``shape`` (S,);
 ``offsets`` (V, 3) canonical metres; ``poses`` (K, J, 3) axis-angle radians per key-frame
