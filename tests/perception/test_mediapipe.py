@@ -136,9 +136,8 @@ def test_several_people_are_reported(astronaut: np.ndarray) -> None:
     scene = np.full((400, 800, 3), 200, np.uint8)
     scene[16:400, 300:684] = cv2.resize(astronaut, (384, 384), interpolation=cv2.INTER_AREA)
     scene[150:400, 20:270] = cv2.resize(astronaut, (250, 250), interpolation=cv2.INTER_AREA)
-    settings = PerceptionSettings(check_several_people=True)
     with pytest.warns(MultiplePeopleWarning, match="most central and largest"):
-        obs = perceive_image(scene, settings=settings)
+        obs = perceive_image(scene)  # the default settings search for a second person
     assert obs.multiple_people[0]
     assert 300 < obs.keypoints[0, LM["nose"], 0] < 684  # the large, central subject
     assert obs.masks[0, :, :290].sum() == 0 and obs.masks[0, :, 300:].sum() > 50_000

@@ -57,19 +57,19 @@ def test_second_run_skips_the_detectors(
     pose, _, face = fakes
     frames = Frames.from_images(blob_frames(3))
     first = perceive(frames, detectors=Detectors(pose=pose, face=face))
-    assert pose.calls == 3 and face.calls == 3
+    assert pose.calls == 6 and face.calls == 3  # pose twice a frame: the second-person search
     entries = _entries(isolated_cache)
     assert len(entries) == 1 and entries[0].suffix == ".npz"
     # same content, new objects: the cache is keyed by content, not identity
     again = perceive(Frames.from_images(blob_frames(3)), detectors=Detectors(pose=pose, face=face))
-    assert pose.calls == 3 and face.calls == 3
+    assert pose.calls == 6 and face.calls == 3
     np.testing.assert_array_equal(again.masks, first.masks)
     np.testing.assert_array_equal(again.keypoints, first.keypoints)
     np.testing.assert_array_equal(again.face, first.face)
     # the camera is attached, not cached
     cam = PinholeCamera.from_focal(99.0, 64, 64)
     assert perceive(frames, cam, detectors=Detectors(pose=pose, face=face)).camera is cam
-    assert pose.calls == 3
+    assert pose.calls == 6
 
 
 def test_cache_key_covers_settings_content_and_detectors(
@@ -80,17 +80,17 @@ def test_cache_key_covers_settings_content_and_detectors(
     frames = Frames.from_images(blob_frames(2))
     perceive(frames, detectors=dets)
     perceive(frames, settings=PerceptionSettings(mask_threshold=0.6), detectors=dets)
-    assert pose.calls == 4
+    assert pose.calls == 8
     changed = blob_frames(2)
     changed[1, 0, 0, 0] += 1
     perceive(Frames.from_images(changed), detectors=dets)
-    assert pose.calls == 6
+    assert pose.calls == 12
     other = FakePose(name="fake-pose-v2")
     perceive(frames, detectors=Detectors(pose=other, face=face))
-    assert other.calls == 2
+    assert other.calls == 4
     assert len(_entries(isolated_cache)) == 4
     perceive(frames, detectors=dets, use_cache=False)
-    assert pose.calls == 8 and len(_entries(isolated_cache)) == 4
+    assert pose.calls == 16 and len(_entries(isolated_cache)) == 4
 
 
 def test_cache_location(
@@ -101,7 +101,7 @@ def test_cache_location(
     perceive(frames, detectors=Detectors(pose=pose))
     assert len(_entries(isolated_cache)) == 1
     perceive(frames, detectors=Detectors(pose=pose), cache_dir=tmp_path / "elsewhere")
-    assert pose.calls == 2
+    assert pose.calls == 4
     assert len(_entries(tmp_path / "elsewhere")) == 1
 
 
@@ -115,7 +115,7 @@ def test_damaged_cache_entry_is_recomputed(
     entry.write_bytes(entry.read_bytes()[:100])  # e.g. a disk filled up by another program
     with pytest.warns(UserWarning, match="ignoring unreadable cache entry"):
         again = perceive(frames, detectors=Detectors(pose=pose))
-    assert pose.calls == 4
+    assert pose.calls == 8
     np.testing.assert_array_equal(again.masks, first.masks)
     Observations.load(entry)  # rewritten whole
     assert [p.name for p in entry.parent.iterdir() if p.name.endswith(".tmp")] == []
@@ -328,7 +328,7 @@ def test_flow_is_computed_and_cached_separately(
     flow_settings = PerceptionSettings(flow="dis")
     obs = perceive(frames, settings=flow_settings,
                    detectors=Detectors(pose=pose, flow=CountingFlow()))
-    assert pose.calls == 4  # perception came from the cache; only flow ran
+    assert pose.calls == 8  # perception came from the cache; only flow ran
     assert CountingFlow.calls == 3
     assert obs.flow is not None and obs.flow.shape == (3, 64, 64, 2)
     # the blob moves right by one pixel per frame

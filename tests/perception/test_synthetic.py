@@ -124,15 +124,15 @@ def _two_people(scene: SynthScene, flip: bool) -> tuple[np.ndarray, np.ndarray, 
 @pytest.mark.parametrize(
     "settings",
     [PerceptionSettings(segmenter="selfie", face=False),
-     PerceptionSettings(check_several_people=True, face=False)],
-    ids=["selfie-components", "second-person-search"],
+     PerceptionSettings(face=False)],
+    ids=["selfie-components", "default-second-person-search"],
 )  # fmt: skip
 def test_two_people_keep_the_larger_with_a_warning(
     scene: SynthScene, settings: PerceptionSettings, flip: bool
 ) -> None:
     """Several people are seen as separate components of the selfie segmenter's mask, or by
-    the pose detector run again with the first person hidden. (With the default settings,
-    mediapipe Pose reports one person and its mask covers only that one: no warning.)"""
+    the pose detector run again with the first person hidden (on by default: mediapipe Pose
+    alone reports one person and its mask covers only that one)."""
     image, large, small = _two_people(scene, flip)
     with pytest.warns(MultiplePeopleWarning, match="most central and largest"):
         obs = perceive_image(image, settings=settings)
@@ -145,7 +145,8 @@ def test_two_people_keep_the_larger_with_a_warning(
 
 
 def test_one_person_is_not_reported_twice(scene: SynthScene) -> None:
-    settings = PerceptionSettings(check_several_people=True, face=False)
+    settings = PerceptionSettings(face=False)
+    assert settings.check_several_people
     with warnings.catch_warnings():
         warnings.simplefilter("error", MultiplePeopleWarning)
         obs = perceive(scene.frames, scene.camera, settings, use_cache=False)

@@ -84,12 +84,15 @@ class PerceptionSettings:
             this fraction of the subject's area: a mask component, or a person found by
             ``check_several_people``.
         check_several_people: after finding a person, hide them and run the pose detector
-            again to find a second one; the more central and larger is kept. Off by default:
-            it doubles the pose detector's time, and mediapipe's pose model readily "finds" a
-            person in leftover clutter (a helmet, a rocket model) once the real one is hidden.
-            Without it, several people are seen only as separate mask components, i.e. with a
-            segmenter that segments everyone (``"selfie"``), or in precomputed OpenPose input;
-            mediapipe's pose solution itself reports one person.
+            again to find a second one; the more central and larger is kept, with a warning.
+            On by default: mediapipe's pose solution reports one person and its mask covers
+            only that one, so without this search a second person goes unnoticed (unless the
+            ``"selfie"`` segmenter or precomputed OpenPose input shows them). It costs little
+            where there is one person (the second search usually stops at the person
+            detector: 47-67 vs 63-67 ms per 540² frame, ``benchmarks/perception_accuracy.py``
+            conditions). The pose model may "find" a person in leftover clutter once the real
+            one is hidden (a helmet in the astronaut photo); such finds are small, and a find
+            counts only when it covers ``other_person_fraction`` of the subject's area.
         face: detect face-mesh landmarks.
         flow: optical flow between consecutive frames: ``"dis"``, ``"deepflow"`` or None.
         min_detection_confidence: the detectors' score threshold, in (0, 1).
@@ -106,7 +109,7 @@ class PerceptionSettings:
     grabcut_band_px: int = 8
     min_mask_fraction: float = 0.002
     other_person_fraction: float = 0.25
-    check_several_people: bool = False
+    check_several_people: bool = True
     face: bool = True
     flow: FlowMethod | None = None
     min_detection_confidence: float = 0.5
