@@ -42,7 +42,7 @@ def _fast_config(**kw: object) -> ReconstructConfig:
         pose=PoseSettings(iterations=12, init_iterations=20, silhouette_points=300,
                           boundary_points=80),
         shape=ShapeSettings(rounds=2, rays_per_frame=80),
-        texture=TextureSettings(dilation=2),
+        texture=TextureSettings(dilation=2), refine_rounds=1,
         **kw,  # type: ignore[arg-type]
     )  # fmt: skip
 
@@ -70,7 +70,8 @@ def test_outputs_complete(tiny_result) -> None:
     assert (out / "preview" / "turntable.png").is_file()
     assert not list(out.glob(".staging-*")) and not list(out.glob(".*.tmp"))
     report = json.loads((out / "report.json").read_text())
-    assert set(report["timings"]) == {"perception", "poses", "shape", "texture", "export"}
+    assert set(report["timings"]) == {"perception", "poses", "shape", "refine", "texture",
+                                      "export"}  # fmt: skip
     assert report["scale"]["known"] is False  # no --height
     assert len(report["fit"]["silhouette_iou"]) == 24
     assert report["input"]["kind"] == "synth"
@@ -133,6 +134,30 @@ def test_no_person_video_fails_cleanly(tmp_path: Path, monkeypatch: pytest.Monke
     assert code == 2
     assert "person" in capsys.readouterr().err.lower()
     assert not any(out.iterdir())
+
+
+def test_fit_shape_cli_from_a_poses_file(tiny_scene: Path, tiny_result, tmp_path: Path,
+                                         capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    import trimesh
+
+    poses = tmp_path / "poses.npz"
+    tiny_result.track.save(poses)
+    out = tmp_path / "shape"
+    args = ["fit-shape", str(tiny_scene), "-o", str(out), "--frames", "24", "--poses",
+            str(poses), "--refine-rounds", "0", "--quiet"]  # fmt: skip
+    assert main(args) == 0
+    assert "surface error against the ground truth" in capsys.readouterr().out
+    data = np.load(out / "shape.npz")
+    n = len(tiny_result.track.poses)
+    assert data["offsets"].shape == data["vertices"].shape and data["poses"].shape[0] == n
+    assert np.abs(data["offsets"]).max() > 1e-3  # offsets were fitted
+    mesh = trimesh.load(out / "canonical.obj", process=False)
+    np.testing.assert_allclose(mesh.vertices, data["vertices"], atol=1e-5)
+    # poses of other key-frames are refused, and nothing is written
+    other = tmp_path / "other"
+    assert main([*args[:2], "-o", str(other), "--frames", "12", *args[6:]]) == 2
+    assert "other frames" in capsys.readouterr().err
+    assert not (other / "shape.npz").exists()
 
 
 def test_unwritable_output_fails_before_work(tiny_scene: Path, tmp_path: Path) -> None:

@@ -46,7 +46,14 @@ from PIL import Image
 
 from monoavatar.body import BodyModel, load_body_model
 from monoavatar.camera import PinholeCamera
-from monoavatar.fit.pose import PoseSettings, PoseTrack, evaluate_fit, fit_poses, world_up
+from monoavatar.fit.pose import (
+    PoseSettings,
+    PoseTrack,
+    evaluate_fit,
+    fit_poses,
+    refine_poses,
+    world_up,
+)
 from monoavatar.fit.shape import CanonicalShape, ShapeSettings, fit_consensus_shape
 from monoavatar.io.frames import Frames, FrameSelection
 from monoavatar.perception.observations import Observations
@@ -78,6 +85,12 @@ class ReconstructConfig:
             stage with true poses).
         body_model: ``"anny"`` or a path to a user's SMPL file.
         offsets: fit per-vertex offsets (False: the shape-only baseline).
+        refine_rounds: rounds of pose ↔ shape alternation after the first consensus shape:
+            poses re-fitted with the consensus shape and offsets, then the shape again
+            (``refine_poses``). The first pass's shape comes from 5 frames' keypoints; the
+            consensus shape from every frame's silhouette is better, and poses fitted with it
+            unpose consistent rays. Turn-around with long sleeves, 120 frames, mediapipe:
+            surface error 10.0 → 9.2 → 8.5 mm with 0, 1, 2 rounds (≈ 25 s each).
         evaluate: for a synth folder, measure the surface error against its ground truth
             (report.json ``ground_truth``; ~10-30 s).
         progress: progress bars.
@@ -93,6 +106,7 @@ class ReconstructConfig:
     poses: str = "fit"
     body_model: str = "anny"
     offsets: bool = True
+    refine_rounds: int = 2
     evaluate: bool = True
     progress: bool = True
     pose: PoseSettings = field(default_factory=PoseSettings)
@@ -102,6 +116,8 @@ class ReconstructConfig:
     def validate(self) -> None:
         if self.frames < 2:
             raise ReconstructError(f"--frames must be at least 2, got {self.frames}")
+        if self.refine_rounds < 0:
+            raise ReconstructError(f"--refine-rounds must be >= 0, got {self.refine_rounds}")
         if self.height is not None and not 0.5 <= self.height <= 2.6:
             raise ReconstructError(
                 f"--height is in metres (0.5 to 2.6), got {self.height}; 175 cm is 1.75"
@@ -282,6 +298,19 @@ def run_shape(body: BodyModel, inputs: Inputs, track: PoseTrack,
     )  # fmt: skip
 
 
+def run_refine(body: BodyModel, inputs: Inputs, track: PoseTrack,
+               shape: CanonicalShape, config: ReconstructConfig) -> PoseTrack:  # fmt: skip
+    """Stage 4b: the poses re-fitted with the consensus shape (its β and offsets), from the
+    track's poses and the shape fit's corrected translations; the next shape fit unposes the
+    silhouettes with them (pose ↔ shape alternation)."""
+    good = np.flatnonzero(~track.failed)
+    translations = track.translations.copy()
+    translations[good[shape.frames]] += shape.frame_shifts
+    start = replace(track, shape=shape.shape.double().numpy(), translations=translations)
+    return refine_poses(body, inputs.observations, start, shape.offsets, config.pose,
+                        progress=config.progress)  # fmt: skip
+
+
 # -- stage 5: texture -------------------------------------------------------------------------
 
 
@@ -384,7 +413,7 @@ def _peak_memory_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def _ground_truth_error(shape: CanonicalShape, inputs: Inputs) -> dict[str, float] | None:
+def ground_truth_error(shape: CanonicalShape, inputs: Inputs) -> dict[str, float] | None:
     from monoavatar.eval import surface_error_after_alignment
     from monoavatar.io.synth_scene import SynthGroundTruth
 
@@ -491,6 +520,14 @@ def reconstruct(input_path: str | Path, out_dir: str | Path,
         t0 = time.perf_counter()
         shape = run_shape(body, inputs, track, config)
         timings["shape"] = time.perf_counter() - t0
+        if config.poses == "fit":  # true poses need no refinement
+            for _ in range(config.refine_rounds):
+                t0 = time.perf_counter()
+                track = run_refine(body, inputs, track, shape, config)
+                timings["refine"] = timings.get("refine", 0.0) + time.perf_counter() - t0
+                t0 = time.perf_counter()
+                shape = run_shape(body, inputs, track, config)
+                timings["shape"] += time.perf_counter() - t0
         t0 = time.perf_counter()
         texture, sh = run_texture(body, inputs, track, shape, config)
         timings["texture"] = time.perf_counter() - t0
@@ -526,7 +563,7 @@ def reconstruct(input_path: str | Path, out_dir: str | Path,
                     "cores": os.cpu_count(), "torch_threads": torch.get_num_threads(),
                     "python": platform.python_version(), "torch": torch.__version__},  # fmt: skip
     }
-    gt_error = _ground_truth_error(shape, inputs) if config.evaluate else None
+    gt_error = ground_truth_error(shape, inputs) if config.evaluate else None
     if gt_error is not None:
         report["ground_truth"] = gt_error
     t0 = time.perf_counter()

@@ -20,12 +20,17 @@ def test_bench_quick_end_to_end(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
     table = (out / "results.md").read_text()
     assert "5.37 (BUFF)" in table and "3.40 (BUFF)" in table  # the dissertation beside us
     (subject,) = results["subjects"]
-    assert set(subject["runs"]) == {"estimated", "gt-poses"}
+    assert set(subject["runs"]) == {"estimated", "shape-only", "gt-poses"}
     for run in subject["runs"].values():
         assert run["status"] == "ok", run.get("error")
         metrics = run["metrics"]
         assert 0.0 < metrics["surface_error_mm"] < 40.0  # a person-shaped avatar
         assert metrics["silhouette_iou"] > 0.5
         assert metrics["timings_s"]["shape"] > 0.0
+    # the shape-only run is the estimated run's baseline column
+    runs = subject["runs"]
+    assert runs["estimated"]["metrics"]["shape_only_error_mm"] == pytest.approx(
+        runs["shape-only"]["metrics"]["surface_error_mm"]
+    )
     assert list((out / "heatmaps").glob("*.png"))
     assert "results.md" in capsys.readouterr().out

@@ -110,7 +110,7 @@ def test_results_files(tmp_path):
     assert data["suite"] == {"version": SUITE_VERSION, "name": "full"}
     assert data["machine"]["cpu"] == "Test CPU"
     assert data["date"].startswith("2026-11-30")
-    assert [m["name"] for m in data["modes"]] == ["estimated", "gt-poses"]
+    assert [m["name"] for m in data["modes"]] == ["estimated", "shape-only", "gt-poses"]
     subjects = {s["name"]: s for s in data["subjects"]}
     assert set(subjects) == {"minimal-a", "clothed-b", "clothed-c"}
     run = subjects["clothed-b"]["runs"]["estimated"]

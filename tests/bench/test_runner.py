@@ -19,12 +19,14 @@ def test_run_bench_with_fake_reconstruction(tiny_scene, anny32, anny_local, tmp_
     out = tmp_path / "bench"
     results = runner.run_bench(out, reconstruct=fake, scenes_dir=scenes, progress=True)
 
-    # both modes were asked for, with the subject's key-frames and a private cache
-    assert len(fake.calls) == 2
-    (scene_in, run_dir, config), (_, _, config_gt) = fake.calls
+    # every mode was asked for, with the subject's key-frames and a private cache
+    assert len(fake.calls) == 3
+    (scene_in, run_dir, config), (_, _, config_base), (_, _, config_gt) = fake.calls
     assert scene_in == scene_folder and run_dir == out / "runs" / subject.name / "estimated"
     assert (config.frames, config.perception, config.poses) == (subject.keyframes,
                                                                 "mediapipe", "fit")  # fmt: skip
+    assert config.offsets and not config_base.offsets
+    assert (config_base.perception, config_base.poses) == ("mediapipe", "fit")
     assert (config_gt.perception, config_gt.poses) == ("ground-truth", "ground-truth")
     assert config.texture_size == subject.texture_size and config.height is None
 
@@ -39,7 +41,8 @@ def test_run_bench_with_fake_reconstruction(tiny_scene, anny32, anny_local, tmp_
     assert m.surface.mean_mm < 1e-6 and m.surface.std_mm < 1e-6
     assert m.surface.scale == pytest.approx(1.0, abs=1e-9)
     assert m.body_only_mm is not None and 2.0 < m.body_only_mm < 20.0  # t-shirt and shorts
-    assert m.shape_only_mm is None  # the fake reports none
+    # the shape-only run (the fake writes the same mesh) fills the estimated run's baseline
+    assert m.shape_only_mm is not None and m.shape_only_mm < 1e-6
     assert m.pa_mpjpe_mm < 30.0  # skeletons of Anny with and without local changes differ
     assert m.silhouette_iou > 0.85 and m.silhouette_iou_min <= m.silhouette_iou
     assert m.texture_lighting == "estimated"  # albedo with the fake's (true) lighting_sh

@@ -75,10 +75,11 @@ def test_quick_suite_is_small():
     assert s.texture_size <= 256 and 2 <= s.keyframes < s.frames
 
 
-def test_modes_are_estimated_and_ground_truth_poses():
-    assert [m.name for m in MODES] == ["estimated", "gt-poses"]
-    assert (MODES[0].perception, MODES[0].poses) == ("mediapipe", "fit")
-    assert MODES[1].poses == "ground-truth"
+def test_modes_are_estimated_shape_only_and_ground_truth_poses():
+    assert [m.name for m in MODES] == ["estimated", "shape-only", "gt-poses"]
+    assert (MODES[0].perception, MODES[0].poses, MODES[0].offsets) == ("mediapipe", "fit", True)
+    assert (MODES[1].perception, MODES[1].poses, MODES[1].offsets) == ("mediapipe", "fit", False)
+    assert MODES[2].poses == "ground-truth" and MODES[2].offsets
 
 
 def test_select_keeps_suite_order_and_rejects_unknown_names():

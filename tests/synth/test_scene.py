@@ -65,6 +65,8 @@ EXPECTED_PARTS = {
     "right_wrist": {"elbow_r", "wrist_r"},
     "left_knee": {"hip_l", "knee_l"},
     "right_knee": {"hip_r", "knee_r"},
+    "left_hip": {"pelvis", "spine1", "hip_l"},
+    "right_hip": {"pelvis", "spine1", "hip_r"},
     "left_ankle": {"knee_l", "ankle_l"},
     "right_ankle": {"knee_r", "ankle_r"},
 }
@@ -114,6 +116,11 @@ def test_files_and_description(turnaround):
     assert sheet.ndim == 3 and sheet.std() > 10
     # the person turns: frame 2 (half a turn) shows the back, the nose is hidden
     assert kp["keypoints"][0, 0, 2] == 1 and kp["keypoints"][2, 0, 2] == 0
+    # the hips (joints deep inside the pelvis) are seen from the front and from the back, and
+    # one of them is hidden in a side view
+    hips = [MEDIAPIPE_LANDMARKS.index("left_hip"), MEDIAPIPE_LANDMARKS.index("right_hip")]
+    assert kp["keypoints"][[0, 2]][:, hips, 2].all()
+    assert kp["keypoints"][[1, 3]][:, hips, 2].sum(axis=1).tolist() == [1, 1]
 
 
 def test_clothing_is_real_displacement(anny_local, turnaround):

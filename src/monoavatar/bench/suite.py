@@ -55,24 +55,30 @@ CATEGORIES: dict[str, str] = {
 @dataclass(frozen=True)
 class BenchMode:
     """How a subject is reconstructed: ``name`` (used in folder names and ``results.json``),
-    ``label`` (for tables), and the reconstruction's ``perception`` and ``poses`` settings."""
+    ``label`` (for tables), and the reconstruction's ``perception``, ``poses`` and ``offsets``
+    settings."""
 
     name: str
     label: str
     perception: str
     poses: str
+    offsets: bool = True
 
-    def to_dict(self) -> dict[str, str]:
+    def to_dict(self) -> dict[str, str | bool]:
         return {"name": self.name, "label": self.label, "perception": self.perception,
-                "poses": self.poses}  # fmt: skip
+                "poses": self.poses, "offsets": self.offsets}  # fmt: skip
 
 
 MODES: tuple[BenchMode, ...] = (
     BenchMode("estimated", "estimated poses", perception="mediapipe", poses="fit"),
+    BenchMode("shape-only", "shape only, estimated poses", perception="mediapipe", poses="fit",
+              offsets=False),
     BenchMode("gt-poses", "ground-truth poses", perception="ground-truth", poses="ground-truth"),
 )
-"""The two runs per subject (Table B.1's two settings). *estimated*: everything from the
-frames (mediapipe masks and keypoints, fitted poses). *gt-poses*: the true poses with the
+"""The runs per subject (Table B.1's two settings and the baseline). *estimated*: everything
+from the frames (mediapipe masks and keypoints, fitted poses). *shape-only*: the same without
+per-vertex offsets, the body model's shape alone (the baseline the offsets must beat; it
+reuses the estimated run's cached perception and poses). *gt-poses*: the true poses with the
 scene's exact masks (and jittered keypoints), which isolates the shape stage."""
 
 

@@ -34,7 +34,7 @@ import json
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -71,6 +71,8 @@ class PoseSettings:
     init_iterations: int = 80
     window: int = 8
     iterations: int = 40
+    refine_iterations: int = 20  # per window in refine_poses (it starts from a good fit)
+    rigid_iterations: int = 10  # root rotation and translation alone, before each window
     keypoint_weight: float = 1.0
     keypoint_sigma: float = 10.0  # percent of height
     min_confidence: float = 0.3
@@ -98,7 +100,8 @@ class PoseSettings:
                 "(a value like 175 is centimetres: use 1.75)"
             )
         for name in ("init_frames", "window", "iterations", "init_iterations",
-                     "pyramid_levels", "silhouette_points", "boundary_points"):  # fmt: skip
+                     "refine_iterations", "pyramid_levels", "silhouette_points",
+                     "boundary_points"):  # fmt: skip
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
 
@@ -209,10 +212,12 @@ class _Subset:
     keypoint_weights: Tensor  # (33, N): keypoints as combinations of the subset
     silhouette: Tensor  # (M,) positions in the subset used for the silhouette terms
     parents: tuple[int, ...]
+    offsets: Tensor | None = None  # (M, 3) canonical offsets D of the silhouette points
 
-    def pose(self, rotations: Tensor, translation: Tensor) -> tuple[Tensor, Tensor]:
-        """rotations (B, J, 3, 3), translation (B, 3) → subset vertices (B, N, 3), joints
-        (B, J, 3)."""
+    def pose(self, rotations: Tensor, translation: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """rotations (B, J, 3, 3), translation (B, 3) → subset vertices (B, N, 3) of the body
+        (the keypoints' support), joints (B, J, 3) and silhouette points (B, M, 3) (with the
+        offsets, when the subset has them)."""
         b = rotations.shape[0]
         joints = self.rest_joints.expand(b, -1, -1)
         transforms = lbs.joint_transforms(rotations, joints, self.parents, translation)
@@ -220,7 +225,12 @@ class _Subset:
         posed_joints = transforms[..., :3, 3] + (
             transforms[..., :3, :3] @ joints.unsqueeze(-1)
         ).squeeze(-1)
-        return vertices, posed_joints
+        silhouette = vertices[:, self.silhouette]
+        if self.offsets is not None:  # LBS is affine in the rest position: add the turned D
+            blend = torch.einsum("mj,bjkl->bmkl", self.weights[self.silhouette],
+                                 transforms[:, :, :3, :3])  # fmt: skip
+            silhouette = silhouette + (blend @ self.offsets.unsqueeze(-1)).squeeze(-1)
+        return vertices, posed_joints, silhouette
 
 
 class _Variables:
@@ -342,10 +352,10 @@ def _energy_terms(ctx: _Context, sub: _Subset, var: _Variables, frames: _Frames
                   ) -> dict[str, Tensor]:  # fmt: skip
     """Per-frame (B,) values of each energy term (unweighted)."""
     body = ctx.body
-    vertices, joints = sub.pose(var.rotations(), var.translation)
+    vertices, joints, silhouette = sub.pose(var.rotations(), var.translation)
     keypoints = torch.einsum("kn,bnc->bkc", sub.keypoint_weights, vertices)
     kp_px, _ = ctx.camera.project(keypoints)
-    sil_px, _ = ctx.camera.project(vertices[:, sub.silhouette])
+    sil_px, _ = ctx.camera.project(silhouette)
     s = ctx.settings
     b = var.body.shape[0]
     terms = {
@@ -686,6 +696,87 @@ def _fit_poses(body: BodyModel, obs: Observations, settings: PoseSettings,
     )
 
 
+def refine_poses(
+    body: BodyModel,
+    obs: Observations,
+    track: PoseTrack,
+    offsets: Tensor | np.ndarray,
+    settings: PoseSettings | None = None,
+    *,
+    progress: bool = False,
+) -> PoseTrack:
+    """Re-fit every frame's pose with the clothed avatar: the track's shape plus per-vertex
+    offsets D (the pose ↔ shape alternation after a first consensus shape).
+
+    The naked body of the first pass cannot fill the silhouette of clothing or hair, so the
+    silhouette terms pull its pose: on a person in long sleeves and trousers the trunk turned
+    up to ±15° away from the truth, twice per turn. With the offsets the silhouette is
+    explained by the shape and the pose is free to match it. Keypoints stay on the body
+    (D moves the surface, not the joints). Each window starts from the track's poses (no
+    prediction needed) and is smoothed against the refined frames before it.
+
+    Args:
+        body: the body model the track was fitted with.
+        obs: the observations the track was fitted to (same frames).
+        track: the first pass; its ``shape`` is kept.
+        offsets: (V, 3) canonical offsets D in metres.
+        settings: options (``refine_iterations`` L-BFGS iterations per window).
+    Returns:
+        A new track; ``timings["refine"]`` holds this pass's time.
+    """
+    settings = settings or PoseSettings()
+    threads = torch.get_num_threads()
+    torch.set_num_threads(settings.threads)
+    try:
+        return _refine_poses(body, obs, track, offsets, settings, progress)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _refine_poses(body: BodyModel, obs: Observations, track: PoseTrack,
+                  offsets: Tensor | np.ndarray, settings: PoseSettings,
+                  progress: bool) -> PoseTrack:  # fmt: skip
+    start = time.perf_counter()
+    n = len(obs)
+    if track.poses.shape[0] != n:
+        raise ValueError(f"the track has {track.poses.shape[0]} frames, the observations {n}")
+    dtype = body.dtype
+    shape = torch.as_tensor(track.shape, dtype=dtype)
+    d = torch.as_tensor(offsets, dtype=dtype)
+    if d.shape != (body.num_vertices, 3):
+        raise ValueError(f"offsets must have shape ({body.num_vertices}, 3), got {tuple(d.shape)}")
+    with torch.no_grad():
+        rest, joints = body.rest_shape(shape[None])
+    ctx = _context(body, obs.camera, settings, apose_prior(body), rest[0], joints[0])
+    ids, sil = _subset_ids(body, settings.silhouette_points, settings.seed)
+    sub = replace(_make_subset(body, rest[0], joints[0], ids, sil), offsets=d[ids][sil])
+    poses, trans = track.poses.copy(), track.translations.copy()
+    energy = np.full(n, np.nan)
+    usable = np.flatnonzero(~obs.no_person)
+    refined_p: dict[int, np.ndarray] = {}
+    refined_t: dict[int, np.ndarray] = {}
+    windows = [usable[i : i + settings.window] for i in range(0, len(usable), settings.window)]
+    for window in tqdm(windows, desc="refine poses", unit="window", disable=not progress):
+        frames = _fix_swaps(ctx, sub, _frames(obs, window, settings, dtype), poses[window],
+                            trans[window])  # fmt: skip
+        hist = _history(refined_p, refined_t, dtype)
+        p_out, t_out, e_out = _fit_window(ctx, sub, frames, poses[window], trans[window], hist,
+                                          settings.refine_iterations)  # fmt: skip
+        for k, i in enumerate(window):
+            refined_p[int(i)], refined_t[int(i)] = p_out[k], t_out[k]
+            poses[i], trans[i], energy[i] = p_out[k], t_out[k], e_out[k]
+    seconds = time.perf_counter() - start
+    limit = max(settings.fail_energy, settings.refit_factor * float(np.nanmedian(energy)))
+    failed = ~(energy <= limit)  # NaN (no person) fails too
+    _interpolate_failed(poses, trans, failed)
+    kp_err, iou = evaluate_fit(body, shape, poses, trans, obs, settings.min_confidence, d)
+    return replace(
+        track, poses=poses, translations=trans, keypoint_error=kp_err, silhouette_iou=iou,
+        energy=energy, failed=failed, seconds=track.seconds + time.perf_counter() - start,
+        timings={**track.timings, "refine": seconds},
+    )  # fmt: skip
+
+
 def _slice(frames: _Frames, k: int) -> _Frames:
     t = frames.targets
     return _Frames(
@@ -701,8 +792,10 @@ def _fix_swaps(ctx: _Context, sub: _Subset, frames: _Frames, pred_p: np.ndarray,
     with left and right exchanged much better, exchange them."""
     dtype = frames.keypoints.dtype
     with torch.no_grad():
-        vertices, _ = sub.pose(lbs.axis_angle_to_matrix(torch.as_tensor(pred_p, dtype=dtype)),
-                               torch.as_tensor(pred_t, dtype=dtype))  # fmt: skip
+        vertices, _, _ = sub.pose(
+            lbs.axis_angle_to_matrix(torch.as_tensor(pred_p, dtype=dtype)),
+            torch.as_tensor(pred_t, dtype=dtype),
+        )
         kp_px, _ = ctx.camera.project(torch.einsum("kn,bnc->bkc", sub.keypoint_weights, vertices))
         scale = frames.targets.scale
         sigma = ctx.settings.keypoint_sigma
@@ -729,6 +822,8 @@ def _fit_window(ctx: _Context, sub: _Subset, frames: _Frames, pred_p: np.ndarray
         smooth = energies.smoothness_energy(var.root(), var.body, var.translation, history)
         return (e + s.smooth_weight * smooth).sum()
 
+    if s.rigid_iterations:  # the global rotation and translation first: well conditioned
+        _lbfgs([var.delta, var.translation], total, s.rigid_iterations)
     _lbfgs(var.params, total, iterations or s.iterations)
     with torch.no_grad():
         e = _weighted(ctx, _energy_terms(ctx, sub, var, frames))
