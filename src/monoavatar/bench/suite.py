@@ -77,9 +77,9 @@ MODES: tuple[BenchMode, ...] = (
 )
 """The runs per subject (Table B.1's two settings and the baseline). *estimated*: everything
 from the frames (mediapipe masks and keypoints, fitted poses). *shape-only*: the same without
-per-vertex offsets, the body model's shape alone (the baseline the offsets must beat; it
-reuses the estimated run's cached perception and poses). *gt-poses*: the true poses with the
-scene's exact masks (and jittered keypoints), which isolates the shape stage."""
+per-vertex offsets, the body model's shape alone (the baseline the offsets must beat; like
+every run it starts from an empty cache, so its timings stand alone). *gt-poses*: the true
+poses with the scene's exact masks (and jittered keypoints), which isolates the shape stage."""
 
 
 class SuiteError(ValueError):

@@ -708,12 +708,14 @@ def refine_poses(
     """Re-fit every frame's pose with the clothed avatar: the track's shape plus per-vertex
     offsets D (the pose ↔ shape alternation after a first consensus shape).
 
-    The naked body of the first pass cannot fill the silhouette of clothing or hair, so the
-    silhouette terms pull its pose: on a person in long sleeves and trousers the trunk turned
-    up to ±15° away from the truth, twice per turn. With the offsets the silhouette is
-    explained by the shape and the pose is free to match it. Keypoints stay on the body
-    (D moves the surface, not the joints). Each window starts from the track's poses (no
-    prediction needed) and is smoothed against the refined frames before it.
+    The first pass tracks with a shape fitted to 5 frames' keypoints; the consensus shape,
+    fitted to every frame's silhouette, is closer to the person, and poses fitted with it
+    (and with D on the silhouette) unpose rays that agree better. Measured on a 120-frame
+    turn-around in long sleeves and trousers with mediapipe perception: surface error 10.0,
+    9.2 and 8.5 mm after 0, 1 and 2 rounds; tracking with the true body shape instead gave
+    5.75 mm, so the first pass's shape is a main source of error. Keypoints stay on the body
+    (D moves the surface, not the joints). Each window starts from the track's poses and is
+    smoothed against the refined frames before it.
 
     Args:
         body: the body model the track was fitted with.
