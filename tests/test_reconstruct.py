@@ -178,3 +178,21 @@ def test_bad_options_are_explained(tiny_scene: Path, tmp_path: Path,
     config.frames = 1
     with pytest.raises(ReconstructError, match="at least 2"):
         reconstruct(tiny_scene, tmp_path / "o2", config)
+
+
+def test_shifted_track_applies_the_shape_fits_corrections_to_its_frames(tiny_result) -> None:
+    from dataclasses import replace
+
+    from monoavatar.reconstruct import shifted_track
+
+    track = tiny_result.track
+    n = len(track.poses)
+    failed = np.zeros(n, bool)
+    failed[[1, 4]] = True  # the shape fit saw the other frames; its frames index those
+    track = replace(track, failed=failed)
+    shape = replace(tiny_result.shape, frames=np.array([0, 2, 3]),
+                    frame_shifts=np.array([[0.01, 0, 0], [0, 0.02, 0], [0, 0, 0.03]]))
+    moved = shifted_track(track, shape).translations - track.translations
+    expected = np.zeros((n, 3))
+    expected[[0, 3, 5]] = shape.frame_shifts  # good frames 0, 2, 3, 5, ... → 0, 3, 5
+    np.testing.assert_allclose(moved, expected, atol=1e-12)

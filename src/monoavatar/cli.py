@@ -341,6 +341,7 @@ def _run_fit_shape(args: argparse.Namespace) -> int:
         run_poses,
         run_refine,
         run_shape,
+        shifted_track,
     )
 
     config = ReconstructConfig(frames=args.frames, height=args.height, focal=args.focal,
@@ -365,6 +366,7 @@ def _run_fit_shape(args: argparse.Namespace) -> int:
         for _ in range(config.refine_rounds):
             track = run_refine(body, inputs, track, shape, config)
             shape = run_shape(body, inputs, track, config)
+        track = shifted_track(track, shape)
         good = np.flatnonzero(~track.failed)
         with atomic_path(args.output / "shape.npz") as tmp:
             with open(tmp, "wb") as f:

@@ -298,15 +298,21 @@ def run_shape(body: BodyModel, inputs: Inputs, track: PoseTrack,
     )  # fmt: skip
 
 
+def shifted_track(track: PoseTrack, shape: CanonicalShape) -> PoseTrack:
+    """The track with the shape fit's per-frame translation corrections applied: the posed
+    avatar then lies where the shape was fitted (texture, previews, params.npz, the report)."""
+    good = np.flatnonzero(~track.failed)
+    translations = track.translations.copy()
+    translations[good[shape.frames]] += shape.frame_shifts
+    return replace(track, translations=translations)
+
+
 def run_refine(body: BodyModel, inputs: Inputs, track: PoseTrack,
                shape: CanonicalShape, config: ReconstructConfig) -> PoseTrack:  # fmt: skip
     """Stage 4b: the poses re-fitted with the consensus shape (its β and offsets), from the
     track's poses and the shape fit's corrected translations; the next shape fit unposes the
     silhouettes with them (pose ↔ shape alternation)."""
-    good = np.flatnonzero(~track.failed)
-    translations = track.translations.copy()
-    translations[good[shape.frames]] += shape.frame_shifts
-    start = replace(track, shape=shape.shape.double().numpy(), translations=translations)
+    start = replace(shifted_track(track, shape), shape=shape.shape.double().numpy())
     return refine_poses(body, inputs.observations, start, shape.offsets, config.pose,
                         progress=config.progress)  # fmt: skip
 
@@ -331,16 +337,14 @@ def posed_avatar(body: BodyModel, shape: np.ndarray | torch.Tensor, offsets: np.
 
 def run_texture(body: BodyModel, inputs: Inputs, track: PoseTrack, shape: CanonicalShape,
                 config: ReconstructConfig) -> tuple[UVTexture, np.ndarray]:  # fmt: skip
-    """Stage 5: one SH lighting estimated from every 4th key-frame on the fitted avatar, then
-    back-projection of the key-frames with that shading divided out (an albedo texture).
-    Returns the texture and the lighting (3, 9)."""
+    """Stage 5 (``track`` as from :func:`shifted_track`): one SH lighting estimated from every
+    4th key-frame on the fitted avatar, then back-projection of the key-frames with that
+    shading divided out (an albedo texture). Returns the texture and the lighting (3, 9)."""
     from monoavatar.texture.lighting import estimate_sh
 
     good = np.flatnonzero(~track.failed)
-    translations = track.translations[good].copy()
-    translations[shape.frames] += shape.frame_shifts  # the shape fit's per-frame corrections
     posed = posed_avatar(body, shape.shape, shape.offsets, track.poses[good],
-                         translations)  # fmt: skip
+                         track.translations[good])  # fmt: skip
     images = inputs.frames.images[good]
     masks = inputs.observations.masks[good]
     sh = estimate_sh(posed[::4], body.faces, images[::4], masks[::4], track.camera)
@@ -528,6 +532,7 @@ def reconstruct(input_path: str | Path, out_dir: str | Path,
                 t0 = time.perf_counter()
                 shape = run_shape(body, inputs, track, config)
                 timings["shape"] += time.perf_counter() - t0
+        track = shifted_track(track, shape)
         t0 = time.perf_counter()
         texture, sh = run_texture(body, inputs, track, shape, config)
         timings["texture"] = time.perf_counter() - t0
