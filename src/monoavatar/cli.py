@@ -217,10 +217,9 @@ def _add_reconstruct(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-offsets", action="store_true",
                    help="fit the body model's shape only, without per-vertex offsets "
                    "(the baseline of the benchmark)")  # fmt: skip
-    p.add_argument("--refine-rounds", type=int, default=2, metavar="R",
+    p.add_argument("--refine-rounds", type=int, default=1, metavar="R",
                    help="rounds of pose re-fitting with the consensus shape, each followed by "
-                   "the shape again (default 2; 0 is fastest, about 25 s less per round "
-                   "for 120 frames)")  # fmt: skip
+                   "the shape again (default 1; each round takes about 40 s for 120 frames)")
     p.add_argument("--model", default="anny",
                    help="body model: anny (default) or a path to your SMPL .npz/.pkl")  # fmt: skip
     p.set_defaults(run=_run_reconstruct)
@@ -322,8 +321,8 @@ def _add_fit_shape(sub: argparse._SubParsersAction) -> None:
                    "--frames (default: fit the poses here)")  # fmt: skip
     p.add_argument("--no-offsets", action="store_true",
                    help="the body model's shape only (the shape-only baseline)")
-    p.add_argument("--refine-rounds", type=int, default=2, metavar="R",
-                   help="rounds of pose re-fitting with the consensus shape (default 2)")
+    p.add_argument("--refine-rounds", type=int, default=1, metavar="R",
+                   help="rounds of pose re-fitting with the consensus shape (default 1)")
     p.set_defaults(run=_run_fit_shape)
 
 

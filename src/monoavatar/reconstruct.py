@@ -90,7 +90,9 @@ class ReconstructConfig:
             (``refine_poses``). The first pass's shape comes from 5 frames' keypoints; the
             consensus shape from every frame's silhouette is better, and poses fitted with it
             unpose consistent rays. Turn-around with long sleeves, 120 frames, mediapipe:
-            surface error 10.0 → 9.2 → 8.5 mm with 0, 1, 2 rounds (≈ 25 s each).
+            surface error 10.0 → 9.2 → 8.5 mm with 0, 1, 2 rounds (≈ 25 s each); bench
+            subject minimal-s19, 30 key-frames: 5.17 → 5.03 → 5.45 mm. Not yet compared over
+            the whole suite.
         evaluate: for a synth folder, measure the surface error against its ground truth
             (report.json ``ground_truth``; ~10-30 s).
         progress: progress bars.
@@ -106,7 +108,7 @@ class ReconstructConfig:
     poses: str = "fit"
     body_model: str = "anny"
     offsets: bool = True
-    refine_rounds: int = 2
+    refine_rounds: int = 1
     evaluate: bool = True
     progress: bool = True
     pose: PoseSettings = field(default_factory=PoseSettings)
