@@ -160,6 +160,20 @@ def test_fit_shape_cli_from_a_poses_file(tiny_scene: Path, tiny_result, tmp_path
     assert not (other / "shape.npz").exists()
 
 
+def test_fit_poses_cli(tiny_scene: Path, tmp_path: Path, monkeypatch_module,
+                      capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    from monoavatar.fit.pose import PoseTrack
+
+    out = tmp_path / "poses"
+    assert main(["fit-poses", str(tiny_scene), "-o", str(out), "--frames", "8", "--quiet"]) == 0
+    assert "8 frames" in capsys.readouterr().out
+    track = PoseTrack.load(out / "poses.npz")
+    assert track.poses.shape[0] == 8 and not track.scale_known
+    assert np.median(track.silhouette_iou) > 0.6  # a person-shaped fit, not a failure
+    assert main(["fit-poses", str(tiny_scene), "-o", str(out), "--height", "170"]) == 2
+    assert "metres" in capsys.readouterr().err
+
+
 def test_unwritable_output_fails_before_work(tiny_scene: Path, tmp_path: Path) -> None:
     blocker = tmp_path / "a_file"
     blocker.write_text("not a folder")

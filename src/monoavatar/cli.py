@@ -5,8 +5,12 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from monoavatar import __version__
+
+if TYPE_CHECKING:  # the CLI imports the pipeline lazily, so that --help stays fast
+    from monoavatar.reconstruct import ReconstructConfig
 
 
 class CliError(Exception):
@@ -195,6 +199,16 @@ def _add_input_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
+def _input_config(args: argparse.Namespace, **options: Any) -> ReconstructConfig:
+    """The configuration from the input options of :func:`_add_input_options`, plus
+    ``options``."""
+    from monoavatar.reconstruct import ReconstructConfig
+
+    return ReconstructConfig(frames=args.frames, height=args.height, focal=args.focal,
+                             camera=args.camera, perception=args.perception,
+                             progress=not args.quiet, **options)  # fmt: skip
+
+
 def _add_reconstruct(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "reconstruct",
@@ -277,11 +291,9 @@ def _run_fit_poses(args: argparse.Namespace) -> int:
     import numpy as np
 
     from monoavatar.body import load_body_model
-    from monoavatar.reconstruct import ReconstructConfig, load_inputs, run_poses
+    from monoavatar.reconstruct import load_inputs, run_poses
 
-    config = ReconstructConfig(frames=args.frames, height=args.height, focal=args.focal,
-                               camera=args.camera, perception=args.perception,
-                               progress=not args.quiet)  # fmt: skip
+    config = _input_config(args)
     try:
         config.validate()
         args.output.mkdir(parents=True, exist_ok=True)
@@ -333,7 +345,6 @@ def _run_fit_shape(args: argparse.Namespace) -> int:
     from monoavatar.fit.pose import PoseTrack
     from monoavatar.io.export_mesh import atomic_path, write_obj
     from monoavatar.reconstruct import (
-        ReconstructConfig,
         ReconstructError,
         ground_truth_error,
         load_inputs,
@@ -343,10 +354,7 @@ def _run_fit_shape(args: argparse.Namespace) -> int:
         shifted_track,
     )
 
-    config = ReconstructConfig(frames=args.frames, height=args.height, focal=args.focal,
-                               camera=args.camera, perception=args.perception,
-                               offsets=not args.no_offsets, refine_rounds=args.refine_rounds,
-                               progress=not args.quiet)  # fmt: skip
+    config = _input_config(args, offsets=not args.no_offsets, refine_rounds=args.refine_rounds)
     try:
         config.validate()
         args.output.mkdir(parents=True, exist_ok=True)
