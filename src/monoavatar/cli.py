@@ -349,9 +349,7 @@ def _run_fit_shape(args: argparse.Namespace) -> int:
         ground_truth_error,
         load_inputs,
         run_poses,
-        run_refine,
-        run_shape,
-        shifted_track,
+        run_shape_rounds,
     )
 
     config = _input_config(args, offsets=not args.no_offsets, refine_rounds=args.refine_rounds)
@@ -369,11 +367,7 @@ def _run_fit_shape(args: argparse.Namespace) -> int:
                 )
         else:
             track = run_poses(body, inputs, config)
-        shape = run_shape(body, inputs, track, config)
-        for _ in range(config.refine_rounds):
-            track = run_refine(body, inputs, track, shape, config)
-            shape = run_shape(body, inputs, track, config)
-        track = shifted_track(track, shape)
+        track, shape = run_shape_rounds(body, inputs, track, config)
         good = np.flatnonzero(~track.failed)
         with atomic_path(args.output / "shape.npz") as tmp:
             with open(tmp, "wb") as f:

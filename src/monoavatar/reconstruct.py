@@ -90,9 +90,9 @@ class ReconstructConfig:
             (``refine_poses``). The first pass's shape comes from 5 frames' keypoints; the
             consensus shape from every frame's silhouette is better, and poses fitted with it
             unpose consistent rays. Turn-around with long sleeves, 120 frames, mediapipe:
-            surface error 10.0 → 9.2 → 8.5 mm with 0, 1, 2 rounds (≈ 25 s each); bench
-            subject minimal-s19, 30 key-frames: 5.17 → 5.03 → 5.45 mm. Not yet compared over
-            the whole suite.
+            surface error 10.0 → 9.2 → 8.5 mm with 0, 1, 2 rounds (≈ 40 s each); bench
+            subject minimal-s19, 30 key-frames: 5.17 → 5.03 → 5.45 mm; whole bench suite:
+            7.27 mm with 1 round, 7.73 mm with 2.
         evaluate: for a synth folder, measure the surface error against its ground truth
             (report.json ``ground_truth``; ~10-30 s).
         progress: progress bars.
@@ -319,6 +319,28 @@ def run_refine(body: BodyModel, inputs: Inputs, track: PoseTrack,
                         progress=config.progress)  # fmt: skip
 
 
+def run_shape_rounds(body: BodyModel, inputs: Inputs, track: PoseTrack,
+                     config: ReconstructConfig, timings: dict[str, float] | None = None,
+                     ) -> tuple[PoseTrack, CanonicalShape]:  # fmt: skip
+    """Stages 4 and 4b: the consensus shape, then ``config.refine_rounds`` rounds of pose
+    re-fit and shape fit (none with ground-truth poses). Returns the track with the last shape
+    fit's translation corrections applied (:func:`shifted_track`) and the shape; adds the
+    seconds spent to ``timings["shape"]`` and ``timings["refine"]``."""
+    timings = timings if timings is not None else {}
+    t0 = time.perf_counter()
+    shape = run_shape(body, inputs, track, config)
+    timings["shape"] = timings.get("shape", 0.0) + time.perf_counter() - t0
+    rounds = config.refine_rounds if config.poses == "fit" else 0
+    for _ in range(rounds):
+        t0 = time.perf_counter()
+        track = run_refine(body, inputs, track, shape, config)
+        timings["refine"] = timings.get("refine", 0.0) + time.perf_counter() - t0
+        t0 = time.perf_counter()
+        shape = run_shape(body, inputs, track, config)
+        timings["shape"] += time.perf_counter() - t0
+    return shifted_track(track, shape), shape
+
+
 # -- stage 5: texture -------------------------------------------------------------------------
 
 
@@ -523,18 +545,7 @@ def reconstruct(input_path: str | Path, out_dir: str | Path,
         t0 = time.perf_counter()
         track = run_poses(body, inputs, config)
         timings["poses"] = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        shape = run_shape(body, inputs, track, config)
-        timings["shape"] = time.perf_counter() - t0
-        if config.poses == "fit":  # true poses need no refinement
-            for _ in range(config.refine_rounds):
-                t0 = time.perf_counter()
-                track = run_refine(body, inputs, track, shape, config)
-                timings["refine"] = timings.get("refine", 0.0) + time.perf_counter() - t0
-                t0 = time.perf_counter()
-                shape = run_shape(body, inputs, track, config)
-                timings["shape"] += time.perf_counter() - t0
-        track = shifted_track(track, shape)
+        track, shape = run_shape_rounds(body, inputs, track, config, timings)
         t0 = time.perf_counter()
         texture, sh = run_texture(body, inputs, track, shape, config)
         timings["texture"] = time.perf_counter() - t0

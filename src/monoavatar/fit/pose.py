@@ -46,6 +46,7 @@ from monoavatar.body import BodyModel, lbs
 from monoavatar.camera import PinholeCamera
 from monoavatar.fit import energies
 from monoavatar.fit.prior import PosePrior, apose_prior
+from monoavatar.fit.threads import torch_threads
 from monoavatar.landmarks import MEDIAPIPE_MIRROR
 from monoavatar.perception.observations import Observations
 from monoavatar.render import rasterize
@@ -215,9 +216,9 @@ class _Subset:
     offsets: Tensor | None = None  # (M, 3) canonical offsets D of the silhouette points
 
     def pose(self, rotations: Tensor, translation: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-        """rotations (B, J, 3, 3), translation (B, 3) → subset vertices (B, N, 3) of the body
-        (the keypoints' support), joints (B, J, 3) and silhouette points (B, M, 3) (with the
-        offsets, when the subset has them)."""
+        """rotations (B, J, 3, 3), translation (B, 3) → keypoints (B, 33, 3) of the body,
+        joints (B, J, 3) and silhouette points (B, M, 3) (with the offsets, when the subset
+        has them)."""
         b = rotations.shape[0]
         joints = self.rest_joints.expand(b, -1, -1)
         transforms = lbs.joint_transforms(rotations, joints, self.parents, translation)
@@ -230,7 +231,8 @@ class _Subset:
             blend = torch.einsum("mj,bjkl->bmkl", self.weights[self.silhouette],
                                  transforms[:, :, :3, :3])  # fmt: skip
             silhouette = silhouette + (blend @ self.offsets.unsqueeze(-1)).squeeze(-1)
-        return vertices, posed_joints, silhouette
+        keypoints = torch.einsum("kn,bnc->bkc", self.keypoint_weights, vertices)
+        return keypoints, posed_joints, silhouette
 
 
 class _Variables:
@@ -352,8 +354,7 @@ def _energy_terms(ctx: _Context, sub: _Subset, var: _Variables, frames: _Frames
                   ) -> dict[str, Tensor]:  # fmt: skip
     """Per-frame (B,) values of each energy term (unweighted)."""
     body = ctx.body
-    vertices, joints, silhouette = sub.pose(var.rotations(), var.translation)
-    keypoints = torch.einsum("kn,bnc->bkc", sub.keypoint_weights, vertices)
+    keypoints, joints, silhouette = sub.pose(var.rotations(), var.translation)
     kp_px, _ = ctx.camera.project(keypoints)
     sil_px, _ = ctx.camera.project(silhouette)
     s = ctx.settings
@@ -587,12 +588,8 @@ def fit_poses(
         PoseFitError: fewer than 2 frames with a person.
     """
     settings = settings or PoseSettings()
-    threads = torch.get_num_threads()
-    torch.set_num_threads(settings.threads)
-    try:
+    with torch_threads(settings.threads):
         return _fit_poses(body, obs, settings, progress)
-    finally:
-        torch.set_num_threads(threads)
 
 
 def _fit_poses(body: BodyModel, obs: Observations, settings: PoseSettings,
@@ -727,12 +724,8 @@ def refine_poses(
         A new track; ``timings["refine"]`` holds this pass's time.
     """
     settings = settings or PoseSettings()
-    threads = torch.get_num_threads()
-    torch.set_num_threads(settings.threads)
-    try:
+    with torch_threads(settings.threads):
         return _refine_poses(body, obs, track, offsets, settings, progress)
-    finally:
-        torch.set_num_threads(threads)
 
 
 def _refine_poses(body: BodyModel, obs: Observations, track: PoseTrack,
@@ -794,11 +787,11 @@ def _fix_swaps(ctx: _Context, sub: _Subset, frames: _Frames, pred_p: np.ndarray,
     with left and right exchanged much better, exchange them."""
     dtype = frames.keypoints.dtype
     with torch.no_grad():
-        vertices, _, _ = sub.pose(
+        keypoints, _, _ = sub.pose(
             lbs.axis_angle_to_matrix(torch.as_tensor(pred_p, dtype=dtype)),
             torch.as_tensor(pred_t, dtype=dtype),
         )
-        kp_px, _ = ctx.camera.project(torch.einsum("kn,bnc->bkc", sub.keypoint_weights, vertices))
+        kp_px, _ = ctx.camera.project(keypoints)
         scale = frames.targets.scale
         sigma = ctx.settings.keypoint_sigma
         as_is = energies.keypoint_energy(kp_px, frames.keypoints, scale, sigma)

@@ -62,6 +62,7 @@ from monoavatar.fit.rays import (
     silhouette_boundary,
     silhouette_correspondences,
 )
+from monoavatar.fit.threads import torch_threads
 from monoavatar.render.renders import vertex_normals
 
 __all__ = [
@@ -587,15 +588,10 @@ def fit_consensus_shape(
         ShapeFitError: inconsistent input shapes or settings.
     """
     settings = settings or ShapeSettings()
-    previous = torch.get_num_threads()
-    if settings.threads is not None:
-        torch.set_num_threads(settings.threads)
-    try:
+    with torch_threads(settings.threads):
         return _fit(
             body, masks, camera, poses, translations, shape_init, settings, transforms, progress
         )
-    finally:
-        torch.set_num_threads(previous)
 
 
 def _fit(

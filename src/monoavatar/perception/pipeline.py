@@ -89,10 +89,12 @@ class PerceptionSettings:
             only that one, so without this search a second person goes unnoticed (unless the
             ``"selfie"`` segmenter or precomputed OpenPose input shows them). It costs little
             where there is one person (the second search usually stops at the person
-            detector: 47-67 vs 63-67 ms per 540² frame, ``benchmarks/perception_accuracy.py``
-            conditions). The pose model may "find" a person in leftover clutter once the real
-            one is hidden (a helmet in the astronaut photo); such finds are small, and a find
-            counts only when it covers ``other_person_fraction`` of the subject's area.
+            detector): ``perceive()`` took 70 ms per 540² frame with it on an idle machine
+            (``benchmarks/bench_perception.py``); in a side-by-side run on 30 frames of a
+            turn-around, 63-67 ms with it and 47-67 ms without. The pose model may "find" a
+            person in leftover clutter once the real one is hidden (a helmet in the astronaut
+            photo); such finds are small, and a find counts only when it covers
+            ``other_person_fraction`` of the subject's area.
         face: detect face-mesh landmarks.
         flow: optical flow between consecutive frames: ``"dis"``, ``"deepflow"`` or None.
         min_detection_confidence: the detectors' score threshold, in (0, 1).
