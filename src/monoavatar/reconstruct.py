@@ -442,7 +442,7 @@ def _peak_memory_mb() -> float:
 
 
 def ground_truth_error(shape: CanonicalShape, inputs: Inputs) -> dict[str, float] | None:
-    from monoavatar.eval import surface_error_after_alignment
+    from monoavatar.eval.surface import ICP_POINTS, surface_error_after_alignment
     from monoavatar.io.synth_scene import SynthGroundTruth
 
     gt = inputs.ground_truth
@@ -454,6 +454,7 @@ def ground_truth_error(shape: CanonicalShape, inputs: Inputs) -> dict[str, float
     result = surface_error_after_alignment(
         (pred, shape.faces.numpy()), (np.asarray(mesh.vertices), np.asarray(mesh.faces)),
         correspondences=np.stack([ids, ids], axis=1), refine=True, icp_iterations=20,
+        icp_points=ICP_POINTS,
     )
     return {"surface_error_mm": 1000.0 * float(result.error.mean)}
 

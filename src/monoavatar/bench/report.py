@@ -335,8 +335,9 @@ def render_markdown(results: BenchResults) -> str:
         "Body only: the fitted body with its offsets removed (same alignment protocol). "
         "Shape-only baseline: a body fitted without offsets, when the reconstruction reports "
         "one. PA-MPJPE: fitted vs true skeleton joints at the key-frames. IoU: posed avatar vs "
-        "exact masks at the key-frames. PSNR: textured avatar in held-out true poses vs the "
-        "frame, on the true person mask (on pixels covered by both in brackets).",
+        "exact masks at the key-frames. PSNR: textured avatar in held-out true poses (placed by "
+        "the surface alignment) vs the frame, on the true person mask (on pixels covered by "
+        "both in brackets).",
         "",
         "| mode | subjects | surface (mm) | body only (mm) | shape-only baseline (mm) | "
         "PA-MPJPE (mm) | silhouette IoU | texture PSNR (dB) |",
