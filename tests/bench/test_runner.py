@@ -76,3 +76,37 @@ def test_unknown_subject_is_refused_before_any_work(tmp_path):
 
     with pytest.raises(SuiteError, match="nobody"):
         runner.run_bench(tmp_path, subjects=["nobody"], reconstruct=never, progress=False)
+
+
+def test_measure_only_remeasures_earlier_runs_without_reconstructing(tiny_scene, anny32,
+                                                                     anny_local, tmp_path,
+                                                                     monkeypatch):  # fmt: skip
+    subject, scenes, _ = tiny_scene
+    tiny = BenchSuite(SUITE_VERSION, "tiny", (subject,))
+    monkeypatch.setattr(runner, "get_suite", lambda quick=False: tiny)
+    out = tmp_path / "bench"
+    fake = FakeReconstruct(anny32, anny_local, avatar="coarse")
+    first = runner.run_bench(out, reconstruct=fake, scenes_dir=scenes, progress=False,
+                             gt_poses=False)  # fmt: skip
+
+    def never(*args):
+        raise AssertionError("reconstruct must not run")
+
+    again = runner.run_bench(out, reconstruct=never, scenes_dir=scenes, progress=False,
+                             gt_poses=False, measure_only=True)  # fmt: skip
+    for mode in ("estimated", "shape-only"):
+        a, b = first.run(subject.name, mode), again.run(subject.name, mode)
+        assert a is not None and b is not None and b.status == "ok" and b.metrics is not None
+        assert a.metrics is not None
+        assert b.metrics.surface.mean_mm == pytest.approx(a.metrics.surface.mean_mm)
+        assert b.metrics.surface.pose_aligned  # the coarse avatar is on the body's vertices
+        assert b.wall_seconds == pytest.approx(12.5)  # the fake's report.json "seconds"
+
+    # a run folder that is gone is a failed run, not a crash
+    import shutil
+
+    shutil.rmtree(out / "runs" / subject.name / "shape-only")
+    third = runner.run_bench(out, reconstruct=never, scenes_dir=scenes, progress=False,
+                             gt_poses=False, measure_only=True)  # fmt: skip
+    gone = third.run(subject.name, "shape-only")
+    assert gone is not None and gone.status == "failed" and "missing" in (gone.error or "")

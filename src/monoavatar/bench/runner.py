@@ -129,6 +129,7 @@ def run_bench(
     reconstruct: ReconstructFn | None = None,
     progress: bool = True,
     scenes_dir: str | Path | None = None,
+    measure_only: bool = False,
 ) -> BenchResults:
     """Run the benchmark and write ``results.json``, ``results.md`` and heat maps.
 
@@ -144,6 +145,9 @@ def run_bench(
         progress: progress lines on stderr, the reconstruction's progress bars, and the
             final table on stdout.
         scenes_dir: where scenes are generated and reused (default ``out_dir/scenes``).
+        measure_only: reconstruct nothing; measure the run folders an earlier benchmark left
+            in ``out_dir/runs`` again (after a change of the metrics). Times and memory are
+            then the reconstructions' own (``report.json``); a missing folder is a failed run.
 
     Returns:
         :class:`~monoavatar.bench.report.BenchResults`; ``.table`` is the Markdown that
@@ -170,29 +174,34 @@ def run_bench(
         for mode in modes:
             count += 1
             folder = out / "runs" / subject.name / mode.name
-            if folder.exists():
-                shutil.rmtree(folder)
-            folder.mkdir(parents=True)
             run = RunResult(subject=subject, mode=mode.name, folder=folder, status="failed")
-            _say(progress, f"bench [{count}/{total}] {subject.name}, {mode.label}: "
-                           f"reconstructing {subject.keyframes} key-frames")  # fmt: skip
-            config = _make_config(subject, mode, progress)
-            measured_peak = _reset_peak_rss()
-            t0 = time.perf_counter()
-            try:
-                with _private_cache(out / ".cache"):
-                    fn(scene, folder, config)
-            except Exception as exc:  # noqa: BLE001 - recorded, the benchmark goes on
-                run.error = _short_error(exc)
+            measured_peak = False
+            if measure_only:
+                _say(progress, f"bench [{count}/{total}] {subject.name}, {mode.label}: "
+                               "measuring the earlier output")  # fmt: skip
+            else:
+                if folder.exists():
+                    shutil.rmtree(folder)
+                folder.mkdir(parents=True)
+                _say(progress, f"bench [{count}/{total}] {subject.name}, {mode.label}: "
+                               f"reconstructing {subject.keyframes} key-frames")  # fmt: skip
+                config = _make_config(subject, mode, progress)
+                measured_peak = _reset_peak_rss()
+                t0 = time.perf_counter()
+                try:
+                    with _private_cache(out / ".cache"):
+                        fn(scene, folder, config)
+                except Exception as exc:  # noqa: BLE001 - recorded, the benchmark goes on
+                    run.error = _short_error(exc)
+                    run.wall_seconds = time.perf_counter() - t0
+                    _say(progress, f"  failed: {run.error}")
+                    if progress:
+                        traceback.print_exc(file=sys.stderr)
+                    results.runs.append(run)
+                    write_results(results)
+                    continue
                 run.wall_seconds = time.perf_counter() - t0
-                _say(progress, f"  failed: {run.error}")
-                if progress:
-                    traceback.print_exc(file=sys.stderr)
-                results.runs.append(run)
-                write_results(results)
-                continue
-            run.wall_seconds = time.perf_counter() - t0
-            run.peak_rss_mb = _peak_rss_mb() if measured_peak else None
+                run.peak_rss_mb = _peak_rss_mb() if measured_peak else None
             try:
                 metrics, heat = evaluate_reconstruction(folder, truth, bodies,
                                                         max_heldout=MAX_HELDOUT)  # fmt: skip
@@ -204,6 +213,8 @@ def run_bench(
                 continue
             if run.peak_rss_mb is None:
                 run.peak_rss_mb = metrics.peak_memory_mb
+            if measure_only:
+                run.wall_seconds = metrics.reconstruct_seconds or 0.0
             run.metrics = metrics
             run.status = "ok"
             estimated = results.run(subject.name, "estimated")
