@@ -27,19 +27,20 @@ reconstruction; this module only reads files, poses body models and renders.
   translations and camera) rasterised at each key-frame against the exact ground-truth mask;
   mean and minimum over key-frames.
 * **Texture PSNR in held-out poses**: on frames that are not key-frames, the avatar is posed
-  on its own skeleton with the ground-truth joint rotations of the frame and placed by the
-  surface alignment: it is scaled and turned by the similarity transform found for the surface
-  error, and its root joint goes where that transform puts it in the ground truth's canonical
-  frame, carried into the world by the ground-truth root joint's transform of the frame. (Where
-  a joint centre lies inside the body is not visible and differs between body models; placing
+  on its own skeleton with the ground-truth joint rotations of the frame, applied on top of
+  the canonical pose that the surface alignment found (a canonical pose a few degrees off the
+  truth's is pose error, which PA-MPJPE measures; ``psnr_rigid_db`` keeps the figure without
+  it), and placed by the surface alignment: scaled and turned by its similarity transform,
+  with its root joint where that transform puts it in the ground truth's canonical frame,
+  carried into the world by the ground-truth root joint's transform of the frame. (Where a
+  joint centre lies inside the body is not visible and differs between body models; placing
   the root joint *onto* the true root joint instead shifted a whole avatar by its canonical
   root offset, about 1 cm, and cost 2.7 dB (estimated poses) to 4.8 dB (true poses) on the
-  suite's means.) The avatar is rendered with
-  the scene camera over a mid-grey background, textured and lit as the reconstruction says
-  (see :attr:`SubjectMetrics.texture_lighting`), and
-  compared with the ground-truth frame (8-bit, the frame's own noise included) on the pixels
-  of the ground-truth person mask (``psnr_db``: missed person pixels count against grey) and
-  on the pixels covered by both (``psnr_overlap_db``: texture only).
+  suite's means.) The avatar is rendered with the scene camera over a mid-grey background,
+  textured and lit as the reconstruction says (see :attr:`SubjectMetrics.texture_lighting`),
+  and compared with the ground-truth frame (8-bit, the frame's own noise included) on the
+  pixels of the ground-truth person mask (``psnr_db``: missed person pixels count against
+  grey) and on the pixels covered by both (``psnr_overlap_db``: texture only).
 """
 
 from __future__ import annotations
@@ -299,6 +300,9 @@ class SurfaceMetrics:
         rigid_mean_mm: the mean after the similarity alignment alone (no articulated pose).
         pose_aligned: whether the articulated pose was aligned too (``mean_mm`` etc. then
             measure the pose-aligned avatar; without a rig they equal the rigid figures).
+        aligned_pose: (J, 3) the joint rotations (axis-angle, radians) that took the avatar's
+            canonical pose to the truth's, None without pose alignment.
+        pose_alignment: the similarity transform applied after that pose (None without).
     """
 
     mean_mm: float
@@ -309,6 +313,8 @@ class SurfaceMetrics:
     alignment: SimilarityTransform = field(default_factory=SimilarityTransform.identity)
     rigid_mean_mm: float | None = None
     pose_aligned: bool = False
+    aligned_pose: np.ndarray | None = None
+    pose_alignment: SimilarityTransform | None = None
 
 
 @dataclass(frozen=True)
@@ -353,6 +359,8 @@ class SubjectMetrics:
         reconstruct_seconds: the reconstruction's total seconds from ``report.json``.
         peak_memory_mb: peak memory from ``report.json``.
         warnings: warnings from ``report.json``.
+        psnr_rigid_db: ``psnr_db`` with the avatar in its own canonical pose (only the
+            similarity transform of the surface alignment), for comparison.
     """
 
     surface: SurfaceMetrics
@@ -370,6 +378,7 @@ class SubjectMetrics:
     reconstruct_seconds: float | None = None
     peak_memory_mb: float | None = None
     warnings: list[str] = field(default_factory=list)
+    psnr_rigid_db: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready values (non-finite numbers become None)."""
@@ -396,6 +405,7 @@ class SubjectMetrics:
             "silhouette_iou_min": self.silhouette_iou_min,
             "texture_psnr_db": self.psnr_db,
             "texture_psnr_overlap_db": self.psnr_overlap_db,
+            "texture_psnr_rigid_db": self.psnr_rigid_db,
             "heldout_frames": self.heldout_frames,
             "texture_lighting": self.texture_lighting,
             "keyframes": self.keyframes,
@@ -446,6 +456,7 @@ def surface_metrics(
     error = bidirectional_surface_error(aligned, pred_faces, gt_vertices, gt_faces)
     rigid_mm = 1000.0 * error.mean
     posed = rig is not None and with_scale
+    fit = None
     if posed:
         from monoavatar.bench.pose_alignment import align_pose_and_scale
 
@@ -468,6 +479,8 @@ def surface_metrics(
         alignment=icp.transform,
         rigid_mean_mm=rigid_mm,
         pose_aligned=posed,
+        aligned_pose=None if fit is None else fit.pose,
+        pose_alignment=None if fit is None else fit.transform,
     )
     return metrics, HeatMap(aligned, np.asarray(pred_faces), error.pred_to_gt)
 
@@ -517,10 +530,13 @@ def _heldout_psnr(
     truth: SubjectTruth,
     alignment: SimilarityTransform,
     frames: np.ndarray,
+    aligned_pose: np.ndarray | None = None,
 ) -> tuple[float | None, float | None, str]:
     """Texture PSNR over the given held-out frames (MSE pooled over frames, 8-bit), and the
     lighting used (see :attr:`SubjectMetrics.texture_lighting`). ``alignment`` maps the
-    avatar's canonical frame onto the ground truth's (the surface error's transform)."""
+    avatar's canonical frame onto the ground truth's (the surface error's transform); with
+    ``aligned_pose`` (J, 3), the avatar's canonical pose is first taken to the truth's by
+    those joint rotations and ``alignment`` is the transform that follows them."""
     import torch
 
     from monoavatar.eval import psnr
@@ -538,7 +554,10 @@ def _heldout_psnr(
         lighting, sh = "ground-truth", truth.sh
     texture = torch.as_tensor(recon.texture.astype(np.float64) / 255.0)
     gt = scene.ground_truth
-    verts, joints = _pose(body, recon.shape, gt.poses[frames], np.zeros((len(frames), 3)),
+    poses = gt.poses[frames]
+    if aligned_pose is not None:
+        poses = _compose(poses, aligned_pose)
+    verts, joints = _pose(body, recon.shape, poses, np.zeros((len(frames), 3)),
                           recon.offsets)  # fmt: skip
     _, rest_joints = _pose(body, recon.shape, np.zeros((1, body.num_joints, 3)), np.zeros((1, 3)),
                            recon.offsets)  # fmt: skip
@@ -569,6 +588,20 @@ def _heldout_psnr(
         return psnr(pred, truth_images, mask=full)
 
     return pooled(person), pooled(both), lighting
+
+
+def _compose(poses: np.ndarray, aligned_pose: np.ndarray) -> np.ndarray:
+    """(K, J, 3) local joint rotations ``R_frame @ R_aligned`` for every joint but the root
+    (which keeps the frame's): the frame's pose applied on top of the canonical pose that the
+    surface alignment found."""
+    from scipy.spatial.transform import Rotation
+
+    k, j, _ = poses.shape
+    frame = Rotation.from_rotvec(poses.reshape(-1, 3))
+    aligned = Rotation.from_rotvec(np.tile(aligned_pose, (k, 1)))
+    out = (frame * aligned).as_rotvec().reshape(k, j, 3)
+    out[:, 0] = poses[:, 0]
+    return out
 
 
 def _sh_to_world(sh: np.ndarray, rotation_from: np.ndarray, rotation_to: np.ndarray) -> np.ndarray:
@@ -666,6 +699,11 @@ def evaluate_reconstruction(
 
     held = heldout_frames(n, idx, max_heldout)
     psnr_mask, psnr_both, lighting = _heldout_psnr(recon, body, truth, surface.alignment, held)
+    psnr_rigid = psnr_mask
+    if surface.pose_alignment is not None:
+        psnr_mask, psnr_both, lighting = _heldout_psnr(recon, body, truth,
+                                                       surface.pose_alignment, held,
+                                                       surface.aligned_pose)  # fmt: skip
 
     report = recon.report
     shape_only = report.get("shape_only_error_mm")
@@ -687,6 +725,7 @@ def evaluate_reconstruction(
             reconstruct_seconds=_float_or_none(report.get("seconds")),
             peak_memory_mb=_float_or_none(report.get("peak_memory_mb")),
             warnings=[str(w) for w in report.get("warnings") or []],
+            psnr_rigid_db=psnr_rigid,
         ),
         heat,
     )
