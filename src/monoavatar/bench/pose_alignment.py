@@ -32,7 +32,7 @@ from numpy.typing import ArrayLike
 from monoavatar.body import lbs
 from monoavatar.eval._checks import FloatArray, as_faces, as_points
 from monoavatar.eval.alignment import SimilarityTransform
-from monoavatar.eval.surface import _subsample, closest_points_on_mesh
+from monoavatar.eval.surface import _subsample, _TriangleIndex, closest_points_on_mesh
 
 __all__ = ["PoseAlignment", "align_pose_and_scale"]
 
@@ -159,7 +159,6 @@ def align_pose_and_scale(
     rest = torch.as_tensor(rest_np, dtype=dt)
     weights = torch.as_tensor(w_np, dtype=dt)
     joints = torch.as_tensor(j_np, dtype=dt)
-    faces_t = torch.as_tensor(faces_np, dtype=torch.long)
     src = torch.as_tensor(_subsample(rest_np.shape[0], max_points), dtype=torch.long)
     tgt_sel = target[_subsample(target.shape[0], max_points)]
     tgt_t = torch.as_tensor(tgt_sel, dtype=dt)
@@ -175,17 +174,26 @@ def align_pose_and_scale(
     def current() -> torch.Tensor:
         return _posed(rest, weights, joints, parents, body_pose, log_scale, rotvec, translation)
 
+    target_index = _TriangleIndex(target[target_f])  # built once: the target does not move
     for _ in range(iterations):
         with torch.no_grad():
             posed = current().numpy()
-        hit = closest_points_on_mesh(posed[src.numpy()], target, target_f)
+        hit = target_index.query(posed[src.numpy()])
         forward = torch.as_tensor(hit.points, dtype=dt)
         n_fwd = torch.as_tensor(target_normals[hit.face_indices], dtype=dt)
         backward = closest_points_on_mesh(tgt_sel, posed, faces_np)
-        corner = faces_t[torch.as_tensor(backward.face_indices, dtype=torch.long)]  # (K, 3)
+        corner = faces_np[backward.face_indices]  # (K, 3)
+        # the objective needs only these vertices: skin just them in the inner iterations
+        used, inverse = np.unique(np.concatenate([src.numpy(), corner.ravel()]),
+                                  return_inverse=True)  # fmt: skip
+        used_t = torch.as_tensor(used, dtype=torch.long)
+        src_in = torch.as_tensor(inverse[: len(src)], dtype=torch.long)
+        corner_in = torch.as_tensor(inverse[len(src) :].reshape(corner.shape), dtype=torch.long)
         bary = torch.as_tensor(backward.barycentric, dtype=dt)[..., None]  # (K, 3, 1)
         n_bwd = torch.as_tensor(_face_normals(posed, faces_np)[backward.face_indices], dtype=dt)
-        _minimise(params, partial(_loss, current, src, forward, n_fwd, corner, bary, tgt_t,
+        subset = partial(_posed, rest[used_t], weights[used_t], joints, parents, body_pose,
+                         log_scale, rotvec, translation)  # fmt: skip
+        _minimise(params, partial(_loss, subset, src_in, forward, n_fwd, corner_in, bary, tgt_t,
                                   n_bwd, body_pose, pose_weight), inner_iterations)  # fmt: skip
 
     with torch.no_grad():
