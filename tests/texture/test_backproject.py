@@ -251,3 +251,50 @@ def test_nothing_visible_gives_a_uniform_texture() -> None:
     tex = _build(mesh, images, masks, [FRONT])
     assert not tex.coverage.any()
     assert np.isfinite(tex.as_float()).all()
+
+
+def _stripes(size: int, period: int = 8) -> np.ndarray:
+    """(size, size, 3) float32 sharp diagonal stripes: light and dark bands ``period`` texels
+    wide, different in every channel (grey-level edges the registration flow can see)."""
+    u, v = np.meshgrid(np.arange(size), np.arange(size))
+    band = ((u + v) // period) % 2
+    return np.stack([0.2 + 0.6 * band, 0.7 - 0.4 * band, 0.3 + 0.3 * band], -1).astype(np.float32)
+
+
+def test_registration_undoes_misplaced_views() -> None:
+    # Views rendered with the true cameras but back-projected with cameras whose principal
+    # point is 1.5-2.5 px off in a random direction (a fitted pose a little off): the median
+    # smears the stripes. The registration flow finds where each view's colours lie.
+    size = 64
+    mesh = cube(n=4)
+    texture = _stripes(size)
+    true = [camera_towards(d, size=128, focal=140.0) for d in _directions()]
+    images, masks = render_views(mesh, texture, true)
+    rng = np.random.default_rng(1)
+    fitted = []
+    for cam in true:
+        K = cam.K.copy()
+        angle, shift = rng.uniform(0, 2 * np.pi), rng.uniform(1.5, 2.5)
+        K[:2, 2] += shift * np.array([np.cos(angle), np.sin(angle)])
+        fitted.append(PinholeCamera(K, cam.R, cam.t, cam.width, cam.height))
+    kwargs = {"size": size, "sample_size": size, "top_k": 5, "mask_margin": 3}
+    plain = _build(mesh, images, masks, fitted, register_rounds=0, **kwargs)
+    registered = _build(mesh, images, masks, fitted, register_rounds=2, **kwargs)
+    exact = _build(mesh, images, masks, true, register_rounds=0, **kwargs)
+    good = exact.coverage & (exact.best_cos > 0.7) & registered.coverage & plain.coverage
+    assert good.sum() > 0.5 * exact.chart.sum()
+    p_plain = psnr(plain.as_float(), texture, good)
+    p_registered = psnr(registered.as_float(), texture, good)
+    p_exact = psnr(exact.as_float(), texture, good)
+    # measured: +1.5 to +2.9 dB over seeds 0-4 (18.6 -> 21.2 dB here; 26.4 dB with exact views)
+    assert p_registered > p_plain + 1.0, (p_plain, p_registered, p_exact)
+    # and views that were right to begin with are left alone
+    again = _build(mesh, images, masks, true, register_rounds=1, **kwargs)
+    assert psnr(again.as_float(), texture, good) > p_exact - 1.0
+
+
+def test_registration_settings_are_checked() -> None:
+    with pytest.raises(TextureError, match="register_rounds"):
+        TextureSettings(register_rounds=-1)
+    with pytest.raises(TextureError, match="max_flow"):
+        TextureSettings(max_flow=0.0)
