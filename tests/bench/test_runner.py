@@ -49,6 +49,11 @@ def test_run_bench_with_fake_reconstruction(tiny_scene, anny32, anny_local, tmp_
     assert m.heldout_frames == subject.frames - subject.keyframes
     assert m.psnr_db is not None and m.psnr_db > 18.0
     assert m.psnr_overlap_db is not None and m.psnr_overlap_db >= m.psnr_db
+    # missed person pixels: the two PSNRs' MSE ratio is (1 - error share) / (1 - pixel share)
+    frac, share = m.missed_fraction, m.missed_error_share
+    assert frac is not None and share is not None and 0.0 < frac < 0.2 and frac < share < 1.0
+    ratio = 10.0 ** ((m.psnr_db - m.psnr_overlap_db) / 10.0)
+    assert ratio == pytest.approx((1.0 - share) / (1.0 - frac), rel=1e-6)
     assert m.keyframes == subject.keyframes
     assert m.timings["shape"] == 2.5 and m.peak_memory_mb == 321.0
     assert m.warnings == ["UserWarning: fake"]

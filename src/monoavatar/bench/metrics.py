@@ -361,6 +361,9 @@ class SubjectMetrics:
         warnings: warnings from ``report.json``.
         psnr_rigid_db: ``psnr_db`` with the avatar in its own canonical pose (only the
             similarity transform of the surface alignment), for comparison.
+        missed_fraction: in the held-out renders, the fraction of ground-truth person pixels
+            the avatar does not cover (they count against grey in ``psnr_db``).
+        missed_error_share: the share of ``psnr_db``'s squared error that lies on them.
     """
 
     surface: SurfaceMetrics
@@ -379,6 +382,8 @@ class SubjectMetrics:
     peak_memory_mb: float | None = None
     warnings: list[str] = field(default_factory=list)
     psnr_rigid_db: float | None = None
+    missed_fraction: float | None = None
+    missed_error_share: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready values (non-finite numbers become None)."""
@@ -406,6 +411,8 @@ class SubjectMetrics:
             "texture_psnr_db": self.psnr_db,
             "texture_psnr_overlap_db": self.psnr_overlap_db,
             "texture_psnr_rigid_db": self.psnr_rigid_db,
+            "texture_missed_fraction": self.missed_fraction,
+            "texture_missed_error_share": self.missed_error_share,
             "heldout_frames": self.heldout_frames,
             "texture_lighting": self.texture_lighting,
             "keyframes": self.keyframes,
@@ -531,7 +538,7 @@ def _heldout_psnr(
     alignment: SimilarityTransform,
     frames: np.ndarray,
     aligned_pose: np.ndarray | None = None,
-) -> tuple[float | None, float | None, str]:
+) -> _HeldOut:
     """Texture PSNR over the given held-out frames (MSE pooled over frames, 8-bit), and the
     lighting used (see :attr:`SubjectMetrics.texture_lighting`). ``alignment`` maps the
     avatar's canonical frame onto the ground truth's (the surface error's transform); with
@@ -543,7 +550,7 @@ def _heldout_psnr(
     from monoavatar.render import rasterize, render_textured
 
     if recon.texture is None or len(frames) == 0:
-        return None, None, "unlit"
+        return _HeldOut(None, None, "unlit")
     scene = truth.scene
     if not recon.texture_is_albedo:
         lighting, sh = "unlit", None
@@ -587,7 +594,29 @@ def _heldout_psnr(
         full = np.broadcast_to(mask[..., None], pred.shape)
         return psnr(pred, truth_images, mask=full)
 
-    return pooled(person), pooled(both), lighting
+    missed = person & ~both
+    squared = ((pred.astype(np.float64) - truth_images.astype(np.float64)) ** 2).sum(axis=-1)
+    total = float(squared[person].sum())
+    return _HeldOut(
+        mask_db=pooled(person),
+        overlap_db=pooled(both),
+        lighting=lighting,
+        missed_fraction=float(missed.sum() / person.sum()) if person.any() else None,
+        missed_error_share=float(squared[missed].sum() / total) if total > 0 else None,
+    )
+
+
+@dataclass(frozen=True)
+class _HeldOut:
+    """What :func:`_heldout_psnr` measures: PSNR on the person mask and on the pixels covered
+    by both, the lighting used, the fraction of person pixels the render misses, and the
+    share of the squared error (on the person mask) that lies on those missed pixels."""
+
+    mask_db: float | None
+    overlap_db: float | None
+    lighting: str
+    missed_fraction: float | None = None
+    missed_error_share: float | None = None
 
 
 def _compose(poses: np.ndarray, aligned_pose: np.ndarray) -> np.ndarray:
@@ -698,12 +727,11 @@ def evaluate_reconstruction(
     ious = _silhouettes(body, verts, recon.camera, gt.masks[idx])
 
     held = heldout_frames(n, idx, max_heldout)
-    psnr_mask, psnr_both, lighting = _heldout_psnr(recon, body, truth, surface.alignment, held)
-    psnr_rigid = psnr_mask
+    heldout = _heldout_psnr(recon, body, truth, surface.alignment, held)
+    psnr_rigid = heldout.mask_db
     if surface.pose_alignment is not None:
-        psnr_mask, psnr_both, lighting = _heldout_psnr(recon, body, truth,
-                                                       surface.pose_alignment, held,
-                                                       surface.aligned_pose)  # fmt: skip
+        heldout = _heldout_psnr(recon, body, truth, surface.pose_alignment, held,
+                                surface.aligned_pose)  # fmt: skip
 
     report = recon.report
     shape_only = report.get("shape_only_error_mm")
@@ -716,16 +744,18 @@ def evaluate_reconstruction(
             pa_mpjpe_mm=float(joint_mm),
             silhouette_iou=float(np.mean(ious)),
             silhouette_iou_min=float(np.min(ious)),
-            psnr_db=psnr_mask,
-            psnr_overlap_db=psnr_both,
-            heldout_frames=int(len(held)) if psnr_mask is not None else 0,
-            texture_lighting=lighting,
+            psnr_db=heldout.mask_db,
+            psnr_overlap_db=heldout.overlap_db,
+            heldout_frames=int(len(held)) if heldout.mask_db is not None else 0,
+            texture_lighting=heldout.lighting,
             keyframes=int(len(idx)),
             timings={str(k): float(v) for k, v in timings.items()},
             reconstruct_seconds=_float_or_none(report.get("seconds")),
             peak_memory_mb=_float_or_none(report.get("peak_memory_mb")),
             warnings=[str(w) for w in report.get("warnings") or []],
             psnr_rigid_db=psnr_rigid,
+            missed_fraction=heldout.missed_fraction,
+            missed_error_share=heldout.missed_error_share,
         ),
         heat,
     )

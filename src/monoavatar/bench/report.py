@@ -237,6 +237,8 @@ def _group(runs: list[RunResult]) -> dict[str, Any]:
     out["texture_psnr_db"] = _mean([m.psnr_db for m in ms])
     out["texture_psnr_overlap_db"] = _mean([m.psnr_overlap_db for m in ms])
     out["texture_psnr_rigid_db"] = _mean([m.psnr_rigid_db for m in ms])
+    out["texture_missed_fraction"] = _mean([m.missed_fraction for m in ms])
+    out["texture_missed_error_share"] = _mean([m.missed_error_share for m in ms])
     out["keyframes"] = _mean([float(m.keyframes) for m in ms])
     out["timings_s"] = {s: _mean([m.timings.get(s) for m in ms]) for s in STAGES}
     out["reconstruct_seconds"] = _mean([m.reconstruct_seconds for m in ms])
@@ -345,11 +347,14 @@ def render_markdown(results: BenchResults) -> str:
         "exact masks at the key-frames. PSNR: textured avatar in held-out true poses (applied on "
         "top of the canonical pose the surface alignment found, and placed by it) vs the "
         "frame, on the true person mask (on pixels covered by both in brackets; results.json "
-        "also holds texture_psnr_rigid_db, without the aligned canonical pose).",
+        "also holds texture_psnr_rigid_db, without the aligned canonical pose). Missed: the "
+        "share of true person pixels the held-out renders do not cover, and (after the slash) "
+        "the share of the PSNR's squared error that lies on them.",
         "",
         "| mode | subjects | surface (mm) | rigid only (mm) | body only (mm) | "
-        "shape-only baseline (mm) | PA-MPJPE (mm) | silhouette IoU | texture PSNR (dB) |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "shape-only baseline (mm) | PA-MPJPE (mm) | silhouette IoU | texture PSNR (dB) | "
+        "missed (% px / % error) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for mode in results.modes:
         for g in groups:
@@ -359,11 +364,16 @@ def render_markdown(results: BenchResults) -> str:
             psnr = _fmt(a.get("texture_psnr_db"), 1)
             if a.get("texture_psnr_overlap_db") is not None:
                 psnr += f" ({_fmt(a.get('texture_psnr_overlap_db'), 1)})"
+            missed = "–"
+            frac, share = a.get("texture_missed_fraction"), a.get("texture_missed_error_share")
+            if frac is not None and share is not None:
+                missed = f"{100 * frac:.1f} / {100 * share:.0f}"
             lines.append(
                 f"| {mode.label} | {_group_label(g)} | {_pm(a)} | "
                 f"{_fmt(a.get('surface_error_rigid_mm'))} | "
                 f"{_fmt(a.get('body_only_error_mm'))} | {_fmt(a.get('shape_only_error_mm'))} | "
-                f"{_fmt(a.get('pa_mpjpe_mm'), 1)} | {_fmt(a.get('silhouette_iou'), 3)} | {psnr} |"
+                f"{_fmt(a.get('pa_mpjpe_mm'), 1)} | {_fmt(a.get('silhouette_iou'), 3)} | {psnr} | "
+                f"{missed} |"
             )
 
     rt = PUBLISHED["runtime"]
