@@ -111,6 +111,44 @@ def test_animate_with_poses_from_params(anny64: BodyModel, avatar: Avatar, tmp_p
     _check_keyframes(anny64, avatar, path, poses, translations - translations[0])
 
 
+def _rot(axis_angle) -> np.ndarray:
+    return lbs.axis_angle_to_matrix(torch.as_tensor(axis_angle, dtype=torch.float64)).numpy()
+
+
+@pytest.mark.parametrize("key", ["world_up", "camera_R", "failed"])
+def test_motion_from_a_camera_world_is_turned_upright(tmp_path: Path, key: str) -> None:
+    # An upright motion (Y up), expressed in another world by a rotation G, as fitted poses of
+    # a real video are (the camera's frame: y down). Loading it must undo G up to a turn
+    # about the vertical (the heading is free), the same for every frame.
+    rng = np.random.default_rng(5)
+    n, joints = 6, 20
+    poses = 0.3 * rng.standard_normal((n, joints, 3))
+    translations = 0.2 * rng.standard_normal((n, 3))
+    if key == "world_up":
+        G = _rot([0.4, -0.2, 2.5])  # a generic world
+        extra = {"world_up": G @ [0.0, 1.0, 0.0]}
+    else:  # a camera at the world's origin looking along +z (OpenCV): world up is -y
+        G = np.diag([1.0, -1.0, -1.0])
+        extra = {"camera_R": np.eye(3)}
+    if key == "failed":
+        extra["failed"] = np.array([False, False, True, False, False, False])
+    stored = poses.copy()
+    for k in range(n):
+        stored[k, 0] = lbs.matrix_to_axis_angle(torch.as_tensor(G @ _rot(poses[k, 0]))).numpy()
+    np.savez(tmp_path / "poses.npz", poses=stored, translations=translations @ G.T, **extra)
+    motion = load_motion(tmp_path / "poses.npz")
+    keep = np.ones(n, bool) if key != "failed" else ~extra["failed"]
+    assert len(motion.poses) == keep.sum()
+    original, moved = poses[keep], translations[keep]
+    np.testing.assert_allclose(motion.poses[:, 1:], original[:, 1:], atol=1e-12)
+    turns = [_rot(motion.poses[k, 0]) @ _rot(original[k, 0]).T for k in range(keep.sum())]
+    H = turns[0]
+    np.testing.assert_allclose(H @ [0.0, 1.0, 0.0], [0.0, 1.0, 0.0], atol=1e-9)  # upright
+    for turn in turns:
+        np.testing.assert_allclose(turn, H, atol=1e-9)
+    np.testing.assert_allclose(motion.translations, (moved - moved[0]) @ H.T, atol=1e-12)
+
+
 def test_animate_folder(anny64: BodyModel, avatar: Avatar, tmp_path: Path) -> None:
     folder = tmp_path / "out"
     folder.mkdir()

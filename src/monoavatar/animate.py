@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from monoavatar.body import Avatar, BodyModel, BodyModelError, load_body_model
+from monoavatar.body import Avatar, BodyModel, BodyModelError, lbs, load_body_model
 from monoavatar.io.errors import InputFormatError, InputNotFoundError
 from monoavatar.io.gltf import PoseAnimation, skinned_mesh_from_body, write_animated_glb
 
@@ -27,6 +27,7 @@ __all__ = [
     "animate_folder",
     "load_motion",
     "resolve_motion",
+    "upright_rotation",
     "walk_motion",
     "wave_motion",
 ]
@@ -107,12 +108,32 @@ def wave_motion(body: BodyModel, frames: int = 90, fps: float = 30.0) -> PoseAni
     return PoseAnimation(poses=pose, translations=np.zeros((frames, 3)), times=time, name="wave")
 
 
+def upright_rotation(up: np.ndarray) -> np.ndarray:
+    """(3, 3) the smallest rotation taking the unit direction ``up`` (3,) to +Y (glTF's up);
+    a half turn about +X when ``up`` is -Y (the world of a camera, y down)."""
+    u = np.asarray(up, dtype=np.float64)
+    u = u / np.linalg.norm(u)
+    y = np.array([0.0, 1.0, 0.0])
+    axis = np.cross(u, y)
+    sin, cos = float(np.linalg.norm(axis)), float(u @ y)
+    if sin < 1e-9:
+        return np.eye(3) if cos > 0 else np.diag([1.0, -1.0, -1.0])
+    angle = np.arctan2(sin, cos)
+    return lbs.axis_angle_to_matrix(torch.from_numpy(axis / sin * angle)).numpy()
+
+
 def load_motion(
     path: str | Path, fps: float = 30.0, *, num_joints: int | None = None
 ) -> PoseAnimation:
-    """Poses (N, J, 3) axis-angle and translations (N, 3) metres from a ``params.npz``, as
-    keyframes at ``fps``. Translations are taken relative to the first frame's, so that the
-    animation starts at the origin.
+    """Poses (N, J, 3) axis-angle and translations (N, 3) metres from a ``params.npz`` or
+    ``poses.npz``, as keyframes at ``fps``. Translations are taken relative to the first
+    frame's, so that the animation starts at the origin.
+
+    Fitted poses live in the world of their camera; for a real video that is the camera's
+    own frame, y *down*. The motion is turned upright for glTF (Y up): by the file's
+    ``world_up`` (3,), else by the up of its camera (``camera_R``: ``R^T (0, -1, 0)``), else
+    it is taken as Y-up already. The root rotation and the translations are turned, the other
+    joints are local and stay. Frames flagged in ``failed`` (a ``poses.npz``) are left out.
 
     Raises:
         InputNotFoundError: no such file.
@@ -129,8 +150,20 @@ def load_motion(
                 if "translations" in data
                 else np.zeros((len(poses), 3))
             )
+            up = np.array([0.0, 1.0, 0.0])
+            if "world_up" in data:
+                up = np.asarray(data["world_up"], dtype=np.float64).reshape(3)
+            elif "camera_R" in data:
+                up = np.asarray(data["camera_R"], dtype=np.float64).reshape(3, 3).T @ [0, -1, 0]
+            failed = (
+                np.asarray(data["failed"], dtype=bool).reshape(-1) if "failed" in data else None
+            )
     except (OSError, ValueError, KeyError) as exc:
         raise InputFormatError(path, f"not a motion file with 'poses' (N, J, 3): {exc}") from exc
+    if not (np.isfinite(up).all() and np.linalg.norm(up) > 0):
+        raise InputFormatError(path, f"world_up must be a non-zero direction, got {up}")
+    if failed is not None and failed.shape == (len(poses),) and (~failed).any():
+        poses, translations = poses[~failed], translations[~failed]
     if poses.ndim != 3 or poses.shape[2] != 3 or len(poses) == 0:
         raise InputFormatError(path, f"poses: expected shape (N, J, 3), got {poses.shape}")
     if num_joints is not None and poses.shape[1] != num_joints:
@@ -141,6 +174,13 @@ def load_motion(
         raise InputFormatError(
             path, f"translations: expected shape ({len(poses)}, 3), got {translations.shape}"
         )
+    turn = upright_rotation(up)
+    if not np.allclose(turn, np.eye(3)):
+        poses = poses.copy()
+        root = lbs.axis_angle_to_matrix(torch.from_numpy(poses[:, 0]))
+        turned = torch.from_numpy(turn) @ root
+        poses[:, 0] = lbs.matrix_to_axis_angle(turned).numpy()
+        translations = translations @ turn.T
     return PoseAnimation.from_fps(poses, translations - translations[:1], fps, name=path.stem)
 
 
