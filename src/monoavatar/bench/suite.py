@@ -211,7 +211,7 @@ FULL_SUBJECTS: tuple[BenchSubject, ...] = (
     _subject("clothed", "loose", 27),  # f, 1.96 m, heavy (w +0.17, m +0.24), skin 0
     _subject("clothed", "skirt", 35),  # m, 1.80 m, thin (w -0.34), skin 1
 )
-"""The full suite: 4 minimal + 5 clothed subjects, 120 frames at 540 x 540 each, 60 of them
+"""The full suite: 4 minimal + 5 clothed subjects, 120 frames at 540 x 540 each, 30 of them
 key-frames spread evenly over the turn (the other 90 are held out)."""
 
 QUICK_SUBJECTS: tuple[BenchSubject, ...] = (
