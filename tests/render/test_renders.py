@@ -217,3 +217,24 @@ def test_render_textured_leaves_the_background_untouched():
                             background=background)  # fmt: skip
     assert image.sum() > 0
     assert background.abs().sum() == 0
+
+
+def test_read_only_numpy_inputs_render_the_same_without_a_warning() -> None:
+    """Broadcast views (read-only) of the SH and the texture are copied, not shared with a
+    torch warning, and give the same image as writable arrays."""
+    import warnings
+
+    v, f, uv, face_uv_idx = textured_quad()
+    frags = rasterize(v, f, IDENTITY_CAMERA)
+    texture = np.random.default_rng(0).uniform(0.1, 0.9, (4, 4, 3))
+    sh = np.zeros((2, 3, 9))
+    sh[..., 0] = 1.5
+    sh[..., 2] = -0.5
+    read_only_sh = np.broadcast_to(sh[0], (2, 3, 9))[1]
+    read_only_texture = np.broadcast_to(texture, (1, 4, 4, 3))[0]
+    assert not read_only_sh.flags.writeable and not read_only_texture.flags.writeable
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        image = render_textured(v, f, frags, uv, face_uv_idx, read_only_texture, read_only_sh)
+    expected = render_textured(v, f, frags, uv, face_uv_idx, texture.copy(), sh[0].copy())
+    torch.testing.assert_close(image, expected)

@@ -36,8 +36,16 @@ __all__ = [
 ]
 
 
+def _writable(x: object) -> object:
+    """``x``, copied when it is a read-only NumPy array (a broadcast view, say), which torch
+    would otherwise share with a warning."""
+    if isinstance(x, np.ndarray) and not x.flags.writeable:
+        return np.array(x)
+    return x
+
+
 def _float_tensor(x: Tensor | np.ndarray, name: str, last: int | None = None) -> Tensor:
-    t = x if isinstance(x, Tensor) else torch.as_tensor(np.asarray(x, dtype=np.float64))
+    t = x if isinstance(x, Tensor) else torch.as_tensor(_writable(np.asarray(x, np.float64)))
     if not t.is_floating_point():
         raise ValueError(f"{name} must be floating point, got dtype {t.dtype}")
     if last is not None and (t.ndim != 2 or t.shape[1] != last):
@@ -275,7 +283,7 @@ def render_textured(
     colour = sample_texture(tex, interpolate_masked(uv_t[uv_idx], uv_idx, fragments))  # (N, 3)
     if sh is not None:
         normals = _masked_normals(vertices, faces, fragments, None).to(tex.dtype)
-        sh_t = torch.as_tensor(sh, dtype=tex.dtype, device=tex.device)
+        sh_t = torch.as_tensor(_writable(sh), dtype=tex.dtype, device=tex.device)
         colour = colour * sh_shading(normals, sh_t).clamp_min(0.0)
     image = bg.expand(height, width, 3).clone()  # never write into the caller's background
     image[fragments.face_id >= 0] = colour
