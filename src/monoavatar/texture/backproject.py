@@ -44,7 +44,7 @@ from torch import Tensor
 from tqdm import tqdm
 
 from monoavatar.camera import PinholeCamera
-from monoavatar.render import rasterize, render_textured, sh_shading, vertex_normals
+from monoavatar.render import Fragments, rasterize, render_textured, sh_shading, vertex_normals
 from monoavatar.texture.atlas import (
     TexelAtlas,
     TextureError,
@@ -292,6 +292,7 @@ def _view_samples(
     sh: np.ndarray | None,
     settings: TextureSettings,
     flow: np.ndarray | None = None,
+    frags: Fragments | None = None,
 ) -> _Views:
     """Back-project one frame onto the chart texels (see the module docstring).
 
@@ -300,9 +301,11 @@ def _view_samples(
     texels (exact up to the perspective division within one triangle, a sub-texel effect for
     triangles a few pixels wide). With ``flow`` (H, W, 2), pixels, a texel projected to p is
     sampled at p + flow(p) (visibility is still decided at p, by the render); it must then
-    also lie inside the mask by ``mask_margin``.
+    also lie inside the mask by ``mask_margin``. ``frags``: the rasterisation of ``vertices``
+    by ``camera``, when the caller has it already.
     """
-    frags = rasterize(vertices, faces, camera)
+    if frags is None:
+        frags = rasterize(vertices, faces, camera)
     face_id = frags.face_id.numpy().ravel()
     depth = frags.depth.numpy()
     focal = float(np.sqrt(camera.K[0, 0] * camera.K[1, 1]))
@@ -350,22 +353,22 @@ def _view_samples(
 
 
 def _registration_flow(
+    frags: Fragments,
     vertices: np.ndarray,
     faces: np.ndarray,
     uv: np.ndarray,
     face_uv: np.ndarray,
     texture: np.ndarray,
     image: np.ndarray,
-    camera: PinholeCamera,
     sh: np.ndarray | None,
     settings: TextureSettings,
 ) -> np.ndarray:
-    """(H, W, 2) float32 flow, pixels, from the avatar rendered with ``texture`` (and shaded
-    by ``sh``) over the frame's own pixels, to the frame: where the colour the texture puts
-    at a pixel is found in the frame. Flow longer than ``max_flow`` is set to zero."""
+    """(H, W, 2) float32 flow, pixels, from the avatar (``vertices``, rasterised as
+    ``frags``) rendered with ``texture`` (and shaded by ``sh``) over the frame's own pixels,
+    to the frame: where the colour the texture puts at a pixel is found in the frame. Flow
+    longer than ``max_flow`` is set to zero."""
     from monoavatar.perception.flow import DISFlow
 
-    frags = rasterize(vertices, faces, camera)
     background = image.astype(np.float64) / 255.0
     render = render_textured(vertices, faces, frags, uv, face_uv, texture.astype(np.float64),
                              sh=sh, background=background)  # fmt: skip
@@ -505,23 +508,19 @@ def build_texture(
 
     corners = f[atlas.face].astype(np.int32)
     graph = None
-    flows: list[np.ndarray | None] = [None] * n_frames
     image = np.zeros((work, work, 3), np.float32)  # the texture so far; round 0 fills it
     for r in range(settings.register_rounds + 1):
-        if r > 0:  # step 6: where the texture so far lies in each frame
-            flows = [
-                _registration_flow(verts[i], f, t, fu, image, imgs[i], cams[i],
-                                   None if lighting is None else lighting[i], settings)
-                for i in tqdm(range(n_frames), desc=f"texture: registration {r}",
-                              unit="frame", disable=not progress)
-            ]  # fmt: skip
         top = _TopK(atlas.num_texels, settings.top_k)
-        label = "texture" if r == 0 else f"texture: round {r + 1}"
+        label = "texture" if r == 0 else f"texture: registration {r}"
         for i in tqdm(range(n_frames), desc=label, unit="frame", disable=not progress):
-            views = _view_samples(
-                atlas, corners, f, verts[i], imgs[i], msks[i], cams[i],
-                None if lighting is None else lighting[i], settings, flows[i],
-            )  # fmt: skip
+            sh_i = None if lighting is None else lighting[i]
+            frags = rasterize(verts[i], f, cams[i])
+            flow = None
+            if r > 0:  # step 6: where the texture so far lies in this frame
+                flow = _registration_flow(frags, verts[i], f, t, fu, image, imgs[i], sh_i,
+                                          settings)  # fmt: skip
+            views = _view_samples(atlas, corners, f, verts[i], imgs[i], msks[i], cams[i], sh_i,
+                                  settings, flow, frags)  # fmt: skip
             top.add(views)
         colour, count = top.median()
         seen = count > 0
