@@ -26,8 +26,8 @@ the median of the most orthogonal texels from all views." Here per texel rather 
 Measured on the bench suite's nine subjects, re-texturing the same fitted avatars (30
 key-frames, estimated poses; the bench's held-out texture PSNR): ``top_k`` 5 → 9 and one
 registration round gave 22.28 → 22.46 dB on the person mask and 24.56 → 24.85 dB where avatar
-and person overlap, every subject equal or better; ``top_k`` 9 alone gave about two thirds of
-that. One round costs about 1.6 s per 30 key-frames of 540 x 540.
+and person overlap, every subject better; on three of them ``top_k`` 9 alone gave about three
+quarters of that. One round costs about 1.6 s per 30 key-frames of 540 x 540.
 
 Conventions: OpenCV cameras (:class:`monoavatar.camera.PinholeCamera`), pixel centres at
 ``(col + 0.5, row + 0.5)``, metres; glTF UVs; colours linear in [0, 1] (frames as uint8).
@@ -44,6 +44,7 @@ from torch import Tensor
 from tqdm import tqdm
 
 from monoavatar.camera import PinholeCamera
+from monoavatar.perception.flow import DISFlow
 from monoavatar.render import Fragments, rasterize, render_textured, sh_shading, vertex_normals
 from monoavatar.texture.atlas import (
     TexelAtlas,
@@ -358,22 +359,21 @@ def _registration_flow(
     faces: np.ndarray,
     uv: np.ndarray,
     face_uv: np.ndarray,
-    texture: np.ndarray,
+    texture: Tensor,
     image: np.ndarray,
     sh: np.ndarray | None,
     settings: TextureSettings,
+    flow_estimator: DISFlow,
 ) -> np.ndarray:
     """(H, W, 2) float32 flow, pixels, from the avatar (``vertices``, rasterised as
-    ``frags``) rendered with ``texture`` (and shaded by ``sh``) over the frame's own pixels,
-    to the frame: where the colour the texture puts at a pixel is found in the frame. Flow
-    longer than ``max_flow`` is set to zero."""
-    from monoavatar.perception.flow import DISFlow
-
+    ``frags``) rendered with ``texture`` (S, S, 3) float64 (and shaded by ``sh``) over the
+    frame's own pixels, to the frame: where the colour the texture puts at a pixel is found
+    in the frame. Flow longer than ``max_flow`` is set to zero."""
     background = image.astype(np.float64) / 255.0
-    render = render_textured(vertices, faces, frags, uv, face_uv, texture.astype(np.float64),
-                             sh=sh, background=background)  # fmt: skip
+    render = render_textured(vertices, faces, frags, uv, face_uv, texture, sh=sh,
+                             background=background)  # fmt: skip
     render8 = (np.clip(render.numpy(), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
-    flow = DISFlow("medium").estimate(render8, image)
+    flow = flow_estimator.estimate(render8, image)
     flow[np.linalg.norm(flow, axis=2) > settings.max_flow] = 0.0
     return flow
 
@@ -509,16 +509,18 @@ def build_texture(
     corners = f[atlas.face].astype(np.int32)
     graph = None
     image = np.zeros((work, work, 3), np.float32)  # the texture so far; round 0 fills it
+    flow_estimator = DISFlow("medium")
     for r in range(settings.register_rounds + 1):
         top = _TopK(atlas.num_texels, settings.top_k)
+        so_far = torch.as_tensor(image, dtype=torch.float64)  # rendered in this round's flows
         label = "texture" if r == 0 else f"texture: registration {r}"
         for i in tqdm(range(n_frames), desc=label, unit="frame", disable=not progress):
             sh_i = None if lighting is None else lighting[i]
             frags = rasterize(verts[i], f, cams[i])
             flow = None
             if r > 0:  # step 6: where the texture so far lies in this frame
-                flow = _registration_flow(frags, verts[i], f, t, fu, image, imgs[i], sh_i,
-                                          settings)  # fmt: skip
+                flow = _registration_flow(frags, verts[i], f, t, fu, so_far, imgs[i], sh_i,
+                                          settings, flow_estimator)  # fmt: skip
             views = _view_samples(atlas, corners, f, verts[i], imgs[i], msks[i], cams[i], sh_i,
                                   settings, flow, frags)  # fmt: skip
             top.add(views)
