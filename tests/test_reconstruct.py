@@ -70,7 +70,7 @@ def test_outputs_complete(tiny_result) -> None:
     assert (out / "preview" / "turntable.png").is_file()
     assert not list(out.glob(".staging-*")) and not list(out.glob(".*.tmp"))
     report = json.loads((out / "report.json").read_text())
-    assert set(report["timings"]) == {"perception", "poses", "shape", "refine", "texture",
+    assert set(report["timings"]) == {"perception", "poses", "shape", "refine", "texture", "flow",
                                       "export"}  # fmt: skip
     assert report["scale"]["known"] is False  # no --height
     assert len(report["fit"]["silhouette_iou"]) == 24

@@ -150,6 +150,18 @@ def coverage_energy(projected: Tensor, targets: SilhouetteTargets, sigma: float 
     return (geman_mcclure(nearest, sigma) * valid).sum(-1) / valid.sum(-1).clamp_min(1.0)
 
 
+def correspondence_energy(
+    projected: Tensor, targets: Tensor, valid: Tensor, scale: Tensor, sigma: float = 1.0
+) -> Tensor:
+    """Model points pulled to 2D correspondences (from optical flow; Eq. A.1 and the E_match of
+    Eq. C.13 written on points instead of pixels): mean over the valid points of the robust
+    ρ(|p − c| / scale). projected, targets (B, N, 2) pixels; valid (B, N) bool; scale (B,)
+    pixels. Returns (B,) (0 where no point is valid)."""
+    r2 = ((projected - targets) ** 2).sum(-1) / scale[:, None] ** 2
+    w = valid.to(projected.dtype)
+    return (w * geman_mcclure(r2, sigma)).sum(-1) / w.sum(-1).clamp_min(1.0)
+
+
 def gaussian_prior_energy(pose: Tensor, mean: Tensor, precision: Tensor) -> Tensor:
     """Single-mode Gaussian pose prior: Mahalanobis (θ − μ)ᵀ Σ⁻¹ (θ − μ) over the body joints'
     axis-angle parameters. pose (B, D), mean (D,), precision (D, D). Returns (B,)."""

@@ -296,11 +296,29 @@ def _make_subset(body: BodyModel, rest: Tensor, joints: Tensor, ids: Tensor,
 
 
 @dataclass(frozen=True)
+class Correspondences:
+    """2D targets of the subset's silhouette points (e.g. from optical flow), per frame.
+
+    Attributes:
+        targets: (B, M, 2) pixel positions where each point should project.
+        valid: (B, M) bool, which points have a target.
+        weight: weight of the term (its energy is in percent of the person's height).
+        sigma: Geman-McClure scale, percent of the person's height.
+    """
+
+    targets: Tensor
+    valid: Tensor
+    weight: float = 300.0
+    sigma: float = 1.0
+
+
+@dataclass(frozen=True)
 class _Frames:
     """Observations of a batch of frames, as tensors."""
 
     keypoints: Tensor  # (B, 33, 3), scaled confidences, low ones zeroed
     targets: energies.SilhouetteTargets
+    flow: Correspondences | None = None  # only in the flow refinement
 
 
 def _frames(obs: Observations, idx: np.ndarray, settings: PoseSettings,
@@ -368,6 +386,11 @@ def _energy_terms(ctx: _Context, sub: _Subset, var: _Variables, frames: _Frames
                                                 ctx.prior.precision),  # fmt: skip
         "limits": energies.hinge_limit_energy(var.body, ctx.limits),
     }
+    if frames.flow is not None:
+        terms["flow"] = energies.correspondence_energy(
+            sil_px, frames.flow.targets, frames.flow.valid, frames.targets.scale,
+            frames.flow.sigma,
+        )  # fmt: skip
     pelvis, neck = body.joint_index("pelvis"), body.joint_index("neck")
     pen = torch.zeros_like(terms["limits"])
     for side in ("l", "r"):
@@ -380,9 +403,11 @@ def _energy_terms(ctx: _Context, sub: _Subset, var: _Variables, frames: _Frames
     return terms
 
 
-def _weighted(ctx: _Context, terms: dict[str, Tensor]) -> Tensor:
+def _weighted(ctx: _Context, terms: dict[str, Tensor], flow_weight: float = 0.0) -> Tensor:
+    """The weighted sum of the terms; the flow term (when present) counts with
+    ``flow_weight``."""
     s = ctx.settings
-    return (
+    total = (
         s.keypoint_weight * terms["keypoints"]
         + s.outside_weight * terms["outside"]
         + s.coverage_weight * terms["coverage"]
@@ -390,6 +415,9 @@ def _weighted(ctx: _Context, terms: dict[str, Tensor]) -> Tensor:
         + s.limit_weight * terms["limits"]
         + s.penetration_weight * terms["penetration"]
     )
+    if "flow" in terms and flow_weight:
+        total = total + flow_weight * terms["flow"]
+    return total
 
 
 def _lbfgs(params: list[Tensor], closure: Callable[[], Tensor], iterations: int) -> None:
@@ -808,12 +836,13 @@ def _fit_window(ctx: _Context, sub: _Subset, frames: _Frames, pred_p: np.ndarray
                 pred_t: np.ndarray, history: tuple[Tensor, Tensor, Tensor] | None,
                 iterations: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fit B frames together from predicted poses (B, J, 3) and translations (B, 3). Returns
-    poses, translations and the per-frame energy without the smoothness term."""
+    poses, translations and the per-frame energy without the smoothness and flow terms."""
     var = _Variables(pred_p, pred_t, frames.keypoints.dtype)
     s = ctx.settings
+    flow_weight = frames.flow.weight if frames.flow is not None else 0.0
 
     def total() -> Tensor:
-        e = _weighted(ctx, _energy_terms(ctx, sub, var, frames))
+        e = _weighted(ctx, _energy_terms(ctx, sub, var, frames), flow_weight)
         smooth = energies.smoothness_energy(var.root(), var.body, var.translation, history)
         return (e + s.smooth_weight * smooth).sum()
 

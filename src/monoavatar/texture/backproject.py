@@ -56,7 +56,7 @@ from monoavatar.texture.atlas import (
 )
 from monoavatar.texture.fill import dilate_texture, harmonic_fill
 
-__all__ = ["TextureSettings", "UVTexture", "build_texture", "sampling_size"]
+__all__ = ["TextureSettings", "UVTexture", "build_texture", "flow_to_frame", "sampling_size"]
 
 
 @dataclass(frozen=True)
@@ -353,7 +353,7 @@ def _view_samples(
     return _Views(texel=cand[idx], cos=ct[idx], colour=colour)
 
 
-def _registration_flow(
+def flow_to_frame(
     frags: Fragments,
     vertices: np.ndarray,
     faces: np.ndarray,
@@ -362,20 +362,17 @@ def _registration_flow(
     texture: Tensor,
     image: np.ndarray,
     sh: np.ndarray | None,
-    settings: TextureSettings,
     flow_estimator: DISFlow,
 ) -> np.ndarray:
     """(H, W, 2) float32 flow, pixels, from the avatar (``vertices``, rasterised as
     ``frags``) rendered with ``texture`` (S, S, 3) float64 (and shaded by ``sh``) over the
-    frame's own pixels, to the frame: where the colour the texture puts at a pixel is found
-    in the frame. Flow longer than ``max_flow`` is set to zero."""
+    frame's own pixels, to the frame (H, W, 3) uint8: where the colour the texture puts at a
+    pixel is found in the frame."""
     background = image.astype(np.float64) / 255.0
     render = render_textured(vertices, faces, frags, uv, face_uv, texture, sh=sh,
                              background=background)  # fmt: skip
     render8 = (np.clip(render.numpy(), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
-    flow = flow_estimator.estimate(render8, image)
-    flow[np.linalg.norm(flow, axis=2) > settings.max_flow] = 0.0
-    return flow
+    return flow_estimator.estimate(render8, image)
 
 
 # -- the most orthogonal views ----------------------------------------------------------------
@@ -519,8 +516,9 @@ def build_texture(
             frags = rasterize(verts[i], f, cams[i])
             flow = None
             if r > 0:  # step 6: where the texture so far lies in this frame
-                flow = _registration_flow(frags, verts[i], f, t, fu, so_far, imgs[i], sh_i,
-                                          settings, flow_estimator)  # fmt: skip
+                flow = flow_to_frame(frags, verts[i], f, t, fu, so_far, imgs[i], sh_i,
+                                     flow_estimator)  # fmt: skip
+                flow[np.linalg.norm(flow, axis=2) > settings.max_flow] = 0.0
             views = _view_samples(atlas, corners, f, verts[i], imgs[i], msks[i], cams[i], sh_i,
                                   settings, flow, frags)  # fmt: skip
             top.add(views)
