@@ -237,7 +237,7 @@ def _add_reconstruct(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--flow-rounds", type=int, default=1, metavar="R",
                    help="rounds of key-frame pose refinement by optical flow from the textured "
                    "avatar to each frame, each followed by the texture again (default 1; "
-                   "about 0.3 s per key-frame and round; 0 turns it off)")
+                   "about 0.25 s per key-frame and round; 0 turns it off)")
     p.add_argument("--model", default="anny",
                    help="body model: anny (default) or a path to your SMPL .npz/.pkl")  # fmt: skip
     p.set_defaults(run=_run_reconstruct)

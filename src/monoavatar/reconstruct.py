@@ -98,9 +98,10 @@ class ReconstructConfig:
             7.27 mm with 1 round, 7.73 mm with 2.
         flow_rounds: rounds of key-frame pose refinement by optical flow from the textured
             avatar's render to each frame, each followed by the texture again
-            (:mod:`monoavatar.fit.flow_refine`, Paper A's analysis by synthesis). Bench
-            subjects, 30 key-frames, one round: held-out texture PSNR +0.1 to +0.2 dB,
-            PA-MPJPE −0.6 to −1.5 mm, key-frame IoU +0.01; about 0.5 s per key-frame.
+            (:mod:`monoavatar.fit.flow_refine`, Paper A's analysis by synthesis). Two bench
+            subjects, 30 key-frames, one round: held-out texture PSNR +0.07 and +0.23 dB,
+            PA-MPJPE −0.9 and −1.4 mm, key-frame IoU +0.01; about 0.25 s per key-frame
+            (28 s for 120).
         evaluate: for a synth folder, measure the surface error against its ground truth
             (report.json ``ground_truth``; about 15 s).
         progress: progress bars.

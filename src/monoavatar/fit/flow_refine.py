@@ -14,9 +14,11 @@ the model and correct the warp by optical flow, E_match of Eq. C.13), with the t
 avatar's render in place of the neighbouring frame: it aligns every key-frame with the same
 texture, so the views agree where they are combined.
 
-Measured on three bench subjects (30 key-frames, estimated poses, one round, re-texturing the
-bench's fitted avatars): held-out texture PSNR +0.10 to +0.21 dB, PA-MPJPE −0.6 to −1.7 mm,
-key-frame silhouette IoU +0.01. The gain is bounded by how slowly the poses converge: on
+Measured by refining the bench's fitted avatars (30 key-frames, estimated poses, one round,
+these defaults) and texturing them again: held-out texture PSNR +0.07 dB (minimal-s3) and
++0.23 dB (clothed-tight-s24), PA-MPJPE −0.9 and −1.4 mm, key-frame silhouette IoU +0.01
+(3000 points and 10 rigid iterations first, on clothed-loose-s27 too: +0.10 to +0.21 dB, at
+twice the time). The gain is bounded by how slowly the poses converge: on
 renders of a textured body with a perfect texture, one round removes about half of a 5° turn
 (flow from a render to the frame underestimates the displacement; each round starts from the
 last one's poses). Texturing the bench avatars from key-frame poses as good as the truth's
