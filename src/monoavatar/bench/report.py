@@ -39,7 +39,7 @@ __all__ = [
 ]
 
 FORMAT = "monoavatar-bench-1"
-STAGES: tuple[str, ...] = ("perception", "poses", "refine", "shape", "texture", "export")
+STAGES: tuple[str, ...] = ("perception", "poses", "refine", "shape", "texture", "flow", "export")
 
 PUBLISHED: dict[str, Any] = {
     "source": "dissertation Paper B, Table B.1 and Sec. B.4 (reference/dissertation.txt)",
