@@ -23,6 +23,7 @@ from monoavatar.fit.flow_refine import (
 from monoavatar.fit.pose import PoseSettings, PoseTrack
 from monoavatar.perception.observations import Observations
 from monoavatar.render import rasterize, render_textured
+from tests.fit.observations import scene_observations
 
 SIZE, FOCAL = 256, 360.0
 YAWS_DEG = (0.0, 40.0, 80.0, 120.0)
@@ -88,16 +89,7 @@ def _scene(body: BodyModel) -> tuple[Observations, np.ndarray, np.ndarray, np.nd
         image = render_textured(out.vertices[i].double(), body.faces, frags, body.uv,
                                 body.face_uv, tex, background=background)  # fmt: skip
         images[i] = (np.clip(image.numpy(), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
-    obs = Observations(
-        masks=masks,
-        keypoints=keypoints,
-        face=np.full((n, 468, 3), np.nan, np.float32),
-        no_person=np.zeros(n, bool),
-        multiple_people=np.zeros(n, bool),
-        camera=camera,
-        frame_indices=np.arange(n),
-        timestamps=np.arange(n) / 30.0,
-    )
+    obs = scene_observations(masks, keypoints, camera)
     return obs, images, poses, texture
 
 
@@ -188,11 +180,10 @@ def test_flow_recovers_turns_keypoints_and_silhouette_do_not_show(anny32: BodyMo
     start = _track(anny32, _perturbed(anny32, poses), obs.camera)
     pose_settings = PoseSettings(silhouette_points=600, boundary_points=150, window=4,
                                  smooth_weight=0.0)  # fmt: skip
-    flow_settings = FlowRefineSettings(iterations=30)
     shape = anny32.default_shape(1)[0].double().numpy()
     offsets = np.zeros((anny32.num_vertices, 3))
     results = {}
-    for name, weight in (("flow", flow_settings.weight), ("keypoints and silhouette", 1e-6)):
+    for name, weight in (("flow", FlowRefineSettings().weight), ("keypoints and silhouette", 1e-6)):
         track = start
         for _ in range(2):  # the render is made from the current poses: two rounds
             settings = FlowRefineSettings(iterations=30, weight=weight)

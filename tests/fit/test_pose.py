@@ -30,6 +30,7 @@ from monoavatar.fit.pose import (
 from monoavatar.landmarks import MEDIAPIPE_MIRROR
 from monoavatar.perception.observations import Observations
 from monoavatar.render import rasterize
+from tests.fit.observations import scene_observations
 
 # Image size and focal length: the person is about 190 px tall. The silhouette term's 4-level
 # pyramid needs that much (at level 3 a person of 90 px is an 11 px blob without limbs).
@@ -95,16 +96,7 @@ def _render_scene(body: BodyModel, poses: np.ndarray, swap_deg: tuple[float, flo
         swap = (yaw >= swap_deg[0]) & (yaw <= swap_deg[1])
         assert swap.sum() >= 3
         keypoints[swap] = keypoints[swap][:, list(MEDIAPIPE_MIRROR)]
-    obs = Observations(
-        masks=masks,
-        keypoints=keypoints,
-        face=np.full((n, 468, 3), np.nan, np.float32),
-        no_person=np.zeros(n, bool),
-        multiple_people=np.zeros(n, bool),
-        camera=camera,
-        frame_indices=np.arange(n),
-        timestamps=np.arange(n) / 30.0,
-    )
+    obs = scene_observations(masks, keypoints, camera)
     return Scene(obs, poses, out.joints.double().numpy(), masks, yaw)
 
 

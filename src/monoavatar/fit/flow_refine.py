@@ -17,13 +17,13 @@ texture, so the views agree where they are combined.
 Measured by refining the bench's fitted avatars (30 key-frames, estimated poses, one round,
 these defaults) and texturing them again: held-out texture PSNR +0.07 dB (minimal-s3) and
 +0.23 dB (clothed-tight-s24), PA-MPJPE −0.9 and −1.4 mm, key-frame silhouette IoU +0.01
-(3000 points and 10 rigid iterations first, on clothed-loose-s27 too: +0.10 to +0.21 dB, at
-twice the time). The gain is bounded by how slowly the poses converge: on
-renders of a textured body with a perfect texture, one round removes about half of a 5° turn
-(flow from a render to the frame underestimates the displacement; each round starts from the
-last one's poses). Texturing the bench avatars from key-frame poses as good as the truth's
-would gain 0.8 dB (minimal-s3) to 3.7 dB (clothed-tight-s24), so better poses remain the
-largest lever on the texture.
+(without the outline margin, with 3000 points and 10 rigid iterations first, also on
+clothed-loose-s27: +0.09 to +0.21 dB, at twice the time). The gain is bounded by how slowly
+the poses converge: on renders of a textured body with a perfect texture, one round removes
+about half of a 5° turn (flow from a render to the frame underestimates the displacement;
+each round starts from the last one's poses). Texturing the bench avatars from key-frame
+poses as good as the truth's would gain 0.8 dB (minimal-s3) to 3.7 dB (clothed-tight-s24), so
+better poses remain the largest lever on the texture.
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, replace
 
+import cv2
 import numpy as np
 import torch
 from torch import Tensor
@@ -113,26 +114,24 @@ def flow_correspondences(
         frags: the rasterisation of the posed avatar (its depth buffer decides visibility).
         flow: (H, W, 2) flow from the render to the frame, pixels.
         mask: (H, W) bool observed person mask: a target must lie on the person.
-        settings: ``max_flow`` and ``depth_tolerance``.
+        settings: ``max_flow``, ``depth_tolerance`` and ``edge_margin``.
     Returns:
         targets (N, 2) pixels (projection + flow at it) and valid (N,) bool: visible, inside
         the image, at least ``edge_margin`` px inside the render's outline, flow shorter than
         ``max_flow``, target on the mask.
     """
-    import cv2
-
     px_t, z_t = camera.project(torch.as_tensor(points, dtype=torch.float64))
     px, z = px_t.numpy(), z_t.numpy()
     h, w = mask.shape
     inside = (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h) & (z > 0)
     col = np.clip(np.floor(px[:, 0]).astype(int), 0, w - 1)
     row = np.clip(np.floor(px[:, 1]).astype(int), 0, h - 1)
-    depth = frags.depth.numpy()[row, col]
-    visible = inside & (frags.face_id.numpy()[row, col] >= 0)
-    visible &= np.abs(z - depth) < settings.depth_tolerance
+    covered = frags.face_id.numpy() >= 0
+    visible = inside & covered[row, col]
+    visible &= np.abs(z - frags.depth.numpy()[row, col]) < settings.depth_tolerance
     if settings.edge_margin > 0:
-        rendered = (frags.face_id.numpy() >= 0).astype(np.uint8)
-        inside_px = cv2.distanceTransform(rendered, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+        inside_px = cv2.distanceTransform(covered.astype(np.uint8), cv2.DIST_L2,
+                                          cv2.DIST_MASK_PRECISE)  # fmt: skip
         visible &= inside_px[row, col] >= settings.edge_margin
     f = flow[row, col].astype(np.float64)
     targets = px + f

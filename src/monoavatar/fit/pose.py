@@ -308,8 +308,8 @@ class Correspondences:
 
     targets: Tensor
     valid: Tensor
-    weight: float = 300.0
-    sigma: float = 1.0
+    weight: float
+    sigma: float
 
 
 @dataclass(frozen=True)
@@ -415,7 +415,7 @@ def _weighted(ctx: _Context, terms: dict[str, Tensor], flow_weight: float = 0.0)
         + s.limit_weight * terms["limits"]
         + s.penetration_weight * terms["penetration"]
     )
-    if "flow" in terms and flow_weight:
+    if "flow" in terms:
         total = total + flow_weight * terms["flow"]
     return total
 
