@@ -78,10 +78,10 @@ def main() -> None:
             start = time.perf_counter()
             perceive(frames, detectors=dets, cache_dir=cache)
             t_cached = (time.perf_counter() - start) / n
-        settings = PerceptionSettings(grabcut=True)
+        settings = PerceptionSettings(grabcut=False)
         start = time.perf_counter()
         perceive(frames, settings=settings, detectors=dets, use_cache=False)
-        t_grabcut = (time.perf_counter() - start) / n
+        t_raw = (time.perf_counter() - start) / n
 
     pairs = list(zip(images[:-1], images[1:], strict=True))
     dis = DISFlow("medium")
@@ -90,7 +90,7 @@ def main() -> None:
     print(f"pose landmarks + mask (mediapipe)        {1000 * t_pose:7.1f} ms/frame")
     print(f"face mesh on the head crop               {1000 * t_face:7.1f} ms/frame")
     print(f"perceive(): mask + landmarks + face      {1000 * t_all:7.1f} ms/frame")
-    print(f"perceive() with GrabCut refinement       {1000 * t_grabcut:7.1f} ms/frame")
+    print(f"perceive() without GrabCut (masks raw)   {1000 * t_raw:7.1f} ms/frame")
     print(f"perceive() from the cache                {1000 * t_cached:7.1f} ms/frame")
     print(f"optical flow, DIS medium                 {1000 * t_dis:7.1f} ms/pair")
     if args.deepflow:

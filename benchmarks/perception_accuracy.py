@@ -121,7 +121,8 @@ def main() -> None:
     parser.add_argument("--segmenter", choices=("pose", "selfie"), default="pose")
     parser.add_argument("--mask-threshold", type=float, default=None)
     parser.add_argument("--temporal-sigma", type=float, default=None)
-    parser.add_argument("--grabcut", action="store_true")
+    parser.add_argument("--no-grabcut", action="store_true",
+                        help="masks without the GrabCut refinement of their boundary")
     parser.add_argument("--no-face", action="store_true", help="skip face landmarks")
     parser.add_argument("--json", type=Path, help="write the figures to this file")
     args = parser.parse_args()
@@ -135,7 +136,7 @@ def main() -> None:
         temporal_sigma=(
             defaults.temporal_sigma if args.temporal_sigma is None else args.temporal_sigma
         ),
-        grabcut=args.grabcut,
+        grabcut=not args.no_grabcut,
         face=not args.no_face,
     )
     print(f"settings: {settings}")

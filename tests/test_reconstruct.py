@@ -210,3 +210,26 @@ def test_shifted_track_applies_the_shape_fits_corrections_to_its_frames(tiny_res
     expected = np.zeros((n, 3))
     expected[[0, 3, 5]] = shape.frame_shifts  # good frames 0, 2, 3, 5, ... → 0, 3, 5
     np.testing.assert_allclose(moved, expected, atol=1e-12)
+
+
+def test_no_grabcut_reaches_perception(tiny_scene: Path, tmp_path: Path,
+                                       monkeypatch: pytest.MonkeyPatch,
+                                       capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """``--no-grabcut`` (and its default, on) arrives at :func:`perceive` as its settings."""
+    import monoavatar.perception as perception
+    from monoavatar.perception.errors import PerceptionError
+
+    seen = []
+
+    def spy(frames, camera=None, settings=None, **kwargs):  # type: ignore[no-untyped-def]
+        seen.append(settings)
+        raise PerceptionError("stopped by the test")
+
+    monkeypatch.setattr(perception, "perceive", spy)
+    base = ["reconstruct", str(tiny_scene), "-o", str(tmp_path / "out"), "--frames", "4",
+            "--perception", "mediapipe", "--quiet"]  # fmt: skip
+    assert main([*base, "--no-grabcut"]) == 2
+    assert main(base) == 2
+    assert "stopped by the test" in capsys.readouterr().err
+    assert [s.grabcut for s in seen] == [False, True]
+    assert seen[1] == perception.PerceptionSettings()

@@ -60,6 +60,7 @@ from monoavatar.fit.pose import (
 from monoavatar.fit.shape import CanonicalShape, ShapeSettings, fit_consensus_shape
 from monoavatar.io.frames import Frames, FrameSelection
 from monoavatar.perception.observations import Observations
+from monoavatar.perception.pipeline import PerceptionSettings
 from monoavatar.texture.backproject import TextureSettings, UVTexture, build_texture
 
 FORMAT = "monoavatar-reconstruction-1"
@@ -102,6 +103,8 @@ class ReconstructConfig:
             subjects, 30 key-frames, one round: held-out texture PSNR +0.07 and +0.23 dB,
             PA-MPJPE −0.9 and −1.4 mm, key-frame IoU +0.01; about 0.25 s per key-frame
             (28 s for 120).
+        perception_settings: options of mediapipe perception (:func:`perceive`), e.g. its
+            GrabCut refinement of the mask boundary (``--no-grabcut`` turns it off).
         evaluate: for a synth folder, measure the surface error against its ground truth
             (report.json ``ground_truth``; about 15 s).
         progress: progress bars.
@@ -125,6 +128,7 @@ class ReconstructConfig:
     shape: ShapeSettings = field(default_factory=ShapeSettings)
     texture: TextureSettings = field(default_factory=TextureSettings)
     flow: FlowRefineSettings = field(default_factory=FlowRefineSettings)
+    perception_settings: PerceptionSettings = field(default_factory=PerceptionSettings)
 
     def validate(self) -> None:
         if self.frames < 2:
@@ -197,7 +201,7 @@ def load_inputs(path: str | Path, config: ReconstructConfig) -> Inputs:
         if config.perception in ("auto", "ground-truth"):
             obs = scene.observations
         else:
-            obs = perceive(scene.frames, scene.camera)
+            obs = perceive(scene.frames, scene.camera, config.perception_settings)
         return Inputs(scene.frames, obs, "synth", scene.ground_truth)
     if config.poses == "ground-truth":
         raise ReconstructError("--poses ground-truth needs a monoavatar synth folder as input")
@@ -208,7 +212,7 @@ def load_inputs(path: str | Path, config: ReconstructConfig) -> Inputs:
             camera = resolve_camera(snap.frames.width, snap.frames.height,
                                     focal_px=config.focal, camera_path=config.camera)  # fmt: skip
         pre = snap.precomputed if config.perception != "mediapipe" else None
-        obs = perceive(snap.frames, camera, precomputed=pre)
+        obs = perceive(snap.frames, camera, config.perception_settings, precomputed=pre)
         return Inputs(snap.frames, obs, "people-snapshot", None)
     if config.perception == "ground-truth":
         raise ReconstructError(
@@ -217,7 +221,7 @@ def load_inputs(path: str | Path, config: ReconstructConfig) -> Inputs:
     frames = read_frames(path, selection)
     camera = resolve_camera(frames.width, frames.height, focal_px=config.focal,
                             camera_path=config.camera)  # fmt: skip
-    obs = perceive(frames, camera)
+    obs = perceive(frames, camera, config.perception_settings)
     kind = "images" if path.is_dir() else ("image" if len(frames) == 1 else "video")
     return Inputs(frames, obs, kind, None)
 

@@ -235,13 +235,41 @@ def test_temporal_smoothing_removes_flicker(
     frames = Frames.from_images(blob_frames(5))  # the person moves 1 px (2 % of its height)
     smooth = perceive(frames, detectors=Detectors(pose=pose, segmenter=DropoutSegmenter()))
     assert smooth.masks[2, 40:54, 24:36].all()
-    raw = perceive(frames, settings=PerceptionSettings(temporal_sigma=0.0),
+    # (GrabCut off: it would grow the cut-off legs back by its band from the image's edges)
+    raw = perceive(frames, settings=PerceptionSettings(temporal_sigma=0.0, grabcut=False),
                    detectors=Detectors(pose=pose, segmenter=DropoutSegmenter()))
     assert not raw.masks[2, 40:54].any()
     # key-frames far apart in the source are not mixed
     far = Frames(frames.images, np.zeros(5), np.arange(5) * 100)
-    sparse = perceive(far, detectors=Detectors(pose=pose, segmenter=DropoutSegmenter()))
+    sparse = perceive(far, settings=PerceptionSettings(grabcut=False),
+                      detectors=Detectors(pose=pose, segmenter=DropoutSegmenter()))
     assert not sparse.masks[2, 40:54].any()
+
+
+class WideSegmenter(FakeSegmenter):
+    """Bright pixels are people, and the 3 px around them too (a segmentation network's
+    mask that reaches past the outline)."""
+
+    def segment(self, image: np.ndarray) -> np.ndarray:
+        prob = super().segment(image)
+        return cv2.dilate(prob, np.ones((7, 7), np.uint8))
+
+
+def test_grabcut_by_default_brings_a_wide_mask_back_to_the_outline(
+    fakes: tuple[FakePose, FakeSegmenter, FakeFace],
+) -> None:
+    pose, _, _ = fakes
+    rng = np.random.default_rng(0)
+    images = blob_frames(3).astype(np.int16)
+    images = np.clip(images + rng.integers(-15, 16, images.shape), 0, 255).astype(np.uint8)
+    frames = Frames.from_images(images)
+    truth = blob_frames(3).mean(axis=3) > 128
+    wide = perceive(frames, settings=PerceptionSettings(grabcut=False),
+                    detectors=Detectors(pose=pose, segmenter=WideSegmenter()))
+    assert wide.masks.sum() > 1.3 * truth.sum()  # the dilated mask as it came
+    refined = perceive(frames, detectors=Detectors(pose=pose, segmenter=WideSegmenter()))
+    assert PerceptionSettings().grabcut
+    np.testing.assert_array_equal(refined.masks, truth)
 
 
 def test_temporal_smoothing_skips_frames_with_motion(
@@ -257,7 +285,8 @@ def test_temporal_smoothing_skips_frames_with_motion(
     obs = perceive(frames, detectors=Detectors(pose=pose, segmenter=segmenter))
     np.testing.assert_array_equal(obs.masks, images.mean(axis=3) > 128)
     with pytest.warns(MultiplePeopleWarning):  # mixing even splits the moving person in two
-        ungated = perceive(frames, settings=PerceptionSettings(temporal_max_motion=math.inf),
+        ungated = perceive(frames, settings=PerceptionSettings(temporal_max_motion=math.inf,
+                                                               grabcut=False),
                            detectors=Detectors(pose=pose, segmenter=segmenter))
     assert ungated.masks[1].sum() < obs.masks[1].sum()
     with pytest.raises(ValueError, match="temporal_max_motion must be >= 0"):
