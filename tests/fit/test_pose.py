@@ -261,6 +261,33 @@ def test_swapped_back_view_keypoints_do_not_flip_the_fit(
     assert difference.max() < 5.0, difference.round(1)  # measured < 1°
 
 
+def test_refit_recovers_a_back_view_fit_stalled_far_off(anny32: BodyModel) -> None:
+    """A frame whose window fit stalled far from the truth (here a back-diagonal view, 120°,
+    fitted from a start turned another 120°: the local fit ends 78° off) is recovered by the
+    per-frame re-fit from its alternative starts (half and quarter turns, swapped keypoints)."""
+    from monoavatar.fit import pose as posefit
+    from monoavatar.fit.prior import apose_prior
+
+    poses = _turn_poses(anny32, 1, 0.0)
+    poses[0, 0, 1] = np.radians(120.0)
+    scene = _render_scene(anny32, poses)
+    settings = SETTINGS
+    with torch.no_grad():
+        rest, joints = anny32.rest_shape(torch.zeros(1, anny32.shape_dim, dtype=anny32.dtype))
+    ctx = posefit._context(anny32, scene.obs.camera, settings, apose_prior(anny32), rest[0],
+                           joints[0])  # fmt: skip
+    ids, sil = posefit._subset_ids(anny32, settings.silhouette_points, settings.seed)
+    sub = posefit._make_subset(anny32, rest[0], joints[0], ids, sil)
+    frame = posefit._frames(scene.obs, np.array([0]), settings, anny32.dtype)
+    start = poses.copy()
+    start[0, 0, 1] += np.radians(120.0)
+    p0, t0, e0 = posefit._fit_window(ctx, sub, frame, start, np.zeros((1, 3)), None)
+    assert _heading_error_deg(p0, poses)[0] > 45.0  # measured 78°: the local fit stalls
+    p, _, e = posefit._refit_frame(ctx, sub, frame, p0[0], t0[0], float(e0[0]))
+    assert _heading_error_deg(p[None], poses)[0] < 20.0  # measured 13°
+    assert e < 0.7 * e0[0]
+
+
 # -- evaluation, settings, errors, file -------------------------------------------------------
 
 

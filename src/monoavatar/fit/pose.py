@@ -857,16 +857,24 @@ def _fit_window(ctx: _Context, sub: _Subset, frames: _Frames, pred_p: np.ndarray
 
 def _refit_frame(ctx: _Context, sub: _Subset, frame: _Frames, pose: np.ndarray,
                  trans: np.ndarray, value: float) -> tuple[np.ndarray, np.ndarray, float]:
-    """Try alternative starts for one frame: turned by half a turn about the vertical, and with
-    the keypoints' left and right exchanged; keep what explains the frame best (judged on the
-    keypoints as detected, either way round)."""
+    """Try alternative starts for one frame: turned by half a turn about the vertical (also
+    with the keypoints' left and right exchanged), the keypoints exchanged alone, and turned by
+    a quarter turn either way (side views, where a fit can stall half-way through a turn); keep
+    what explains the frame best (judged on the keypoints as detected, either way round)."""
     best = (pose, trans, value)
     up = world_up(ctx.camera)
     root = lbs.axis_angle_to_matrix(torch.from_numpy(pose[0])).numpy()
-    turned = pose.copy()
-    turned[0] = lbs.matrix_to_axis_angle(torch.from_numpy(_turn(up, math.pi) @ root)).numpy()
+
+    def turned(angle: float) -> np.ndarray:
+        out = pose.copy()
+        out[0] = lbs.matrix_to_axis_angle(torch.from_numpy(_turn(up, angle) @ root)).numpy()
+        return out
+
     swapped = _Frames(frame.keypoints[:, list(MEDIAPIPE_MIRROR)], frame.targets)
-    for start, obs in ((turned, frame), (turned, swapped), (pose, swapped)):
+    half = turned(math.pi)
+    starts = ((half, frame), (half, swapped), (pose, swapped),
+              (turned(math.pi / 2), frame), (turned(-math.pi / 2), frame))  # fmt: skip
+    for start, obs in starts:
         p, t, e = _fit_window(ctx, sub, obs, start[None], trans[None], None,
                               2 * ctx.settings.iterations)  # fmt: skip
         if float(e[0]) < 0.7 * best[2]:  # a clear improvement only: no flip on a whim
