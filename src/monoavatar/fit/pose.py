@@ -60,7 +60,8 @@ class PoseFitError(RuntimeError):
 
 @dataclass
 class PoseSettings:
-    """Options of pose fitting; every field can be set from the CLI (``--pose-<name>``).
+    """Options of pose fitting (``ReconstructConfig.pose`` in Python; the CLI sets ``height``
+    from ``--height`` and keeps the other defaults).
 
     Weights multiply energies measured in percent of the person's height (image terms),
     radians (prior, limits, smoothness) and centimetres (penetration).
