@@ -16,6 +16,7 @@ from monoavatar.bench.metrics import (
     load_truth,
     read_obj,
     read_reconstruction,
+    root_orientation_error_deg,
     surface_metrics,
 )
 from monoavatar.io.export_mesh import write_obj
@@ -88,6 +89,27 @@ def test_heldout_frames():
     held = heldout_frames(120, np.arange(0, 120, 4), 20)
     assert len(held) == 20 and not set(held) & set(range(0, 120, 4))
     assert heldout_frames(3, np.array([0, 1, 2]), 5).size == 0
+
+
+def test_root_orientation_error_is_compared_in_camera_axes():
+    """The same body seen by the same camera: 0°. A body turned by a quarter turn about the
+    vertical: 90°. A world turned together with its camera (another world convention, the same
+    view): still 0°, and a body facing the wrong way (half a turn): 180°."""
+    roots = np.array([[0.0, 0.3, 0.0], [0.1, 2.0, -0.05]])
+    cam = Rotation.from_euler("x", 12, degrees=True).as_matrix()
+    np.testing.assert_allclose(root_orientation_error_deg(roots, cam, roots, cam), 0.0, atol=1e-6)
+    turned = (Rotation.from_euler("y", 90, degrees=True) * Rotation.from_rotvec(roots)).as_rotvec()
+    np.testing.assert_allclose(root_orientation_error_deg(turned, cam, roots, cam), 90.0,
+                               atol=1e-6)  # fmt: skip
+    # another world: x_new = W x_old; roots become W R, the camera R_c W^T
+    w = Rotation.from_euler("zyx", [30, -50, 10], degrees=True)
+    other_roots = (w * Rotation.from_rotvec(roots)).as_rotvec()
+    other_cam = cam @ w.as_matrix().T
+    np.testing.assert_allclose(root_orientation_error_deg(other_roots, other_cam, roots, cam),
+                               0.0, atol=1e-6)  # fmt: skip
+    flipped = (Rotation.from_euler("y", 180, degrees=True) * Rotation.from_rotvec(roots))
+    np.testing.assert_allclose(
+        root_orientation_error_deg(flipped.as_rotvec(), cam, roots, cam), 180.0, atol=1e-4)
 
 
 def test_reconstruction_folder_is_read(tiny_scene, anny32, anny_local, tmp_path):

@@ -23,6 +23,11 @@ reconstruction; this module only reads files, poses body models and renders.
   fitted shape parameters, offsets removed; not a separately fitted shape-only baseline).
 * **Joint error**: PA-MPJPE (per-frame Procrustes with scale) of the fitted skeleton's joints
   at the key-frames against the ground-truth skeleton's, matched by joint name, in mm.
+* **Root orientation error**: the angle between the fitted and the true root (pelvis)
+  orientation at each key-frame, both taken into their camera's axes (so it holds when the
+  reconstruction's camera differs from the scene's); median and maximum over the key-frames,
+  and how many key-frames are more than 30° off. PA-MPJPE aligns each frame's skeleton by a
+  rotation and so cannot see a body fitted facing the wrong way; this can.
 * **Silhouette IoU**: the posed avatar (shape + offsets, the reconstruction's own poses,
   translations and camera) rasterised at each key-frame against the exact ground-truth mask;
   mean and minimum over key-frames.
@@ -68,6 +73,7 @@ __all__ = [
     "BodyCache",
     "HeatMap",
     "MetricsError",
+    "ROOT_OFF_DEG",
     "Reconstruction",
     "Rig",
     "SubjectMetrics",
@@ -78,6 +84,7 @@ __all__ = [
     "heldout_frames",
     "load_truth",
     "read_obj",
+    "root_orientation_error_deg",
     "read_reconstruction",
     "surface_metrics",
 ]
@@ -364,6 +371,9 @@ class SubjectMetrics:
         missed_fraction: in the held-out renders, the fraction of ground-truth person pixels
             the avatar does not cover (they count against grey in ``psnr_db``).
         missed_error_share: the share of ``psnr_db``'s squared error that lies on them.
+        root_error_deg: median over the key-frames of the root orientation error, degrees
+            (:func:`root_orientation_error_deg`); ``root_error_max_deg`` the worst key-frame,
+            ``root_off_frames`` how many key-frames are more than :data:`ROOT_OFF_DEG` off.
     """
 
     surface: SurfaceMetrics
@@ -384,6 +394,9 @@ class SubjectMetrics:
     psnr_rigid_db: float | None = None
     missed_fraction: float | None = None
     missed_error_share: float | None = None
+    root_error_deg: float | None = None
+    root_error_max_deg: float | None = None
+    root_off_frames: int | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready values (non-finite numbers become None)."""
@@ -413,6 +426,9 @@ class SubjectMetrics:
             "texture_psnr_rigid_db": self.psnr_rigid_db,
             "texture_missed_fraction": self.missed_fraction,
             "texture_missed_error_share": self.missed_error_share,
+            "root_error_deg": self.root_error_deg,
+            "root_error_max_deg": self.root_error_max_deg,
+            "root_off_frames": self.root_off_frames,
             "heldout_frames": self.heldout_frames,
             "texture_lighting": self.texture_lighting,
             "keyframes": self.keyframes,
@@ -654,6 +670,23 @@ def _sh_to_world(sh: np.ndarray, rotation_from: np.ndarray, rotation_to: np.ndar
     return np.asarray(solution.T)
 
 
+ROOT_OFF_DEG = 30.0  # a key-frame whose root is further off than this counts as turned wrong
+
+
+def root_orientation_error_deg(
+    fitted_root: np.ndarray, fitted_camera_r: np.ndarray,
+    true_root: np.ndarray, true_camera_r: np.ndarray,
+) -> np.ndarray:  # fmt: skip
+    """(K,) angle in degrees between fitted and true root orientations: axis-angle (K, 3) in
+    each one's world, compared in camera axes (``R_cam @ R_root``, with each world's
+    world-to-camera rotation (3, 3))."""
+    from scipy.spatial.transform import Rotation
+
+    fitted = Rotation.from_matrix(fitted_camera_r) * Rotation.from_rotvec(fitted_root)
+    true = Rotation.from_matrix(true_camera_r) * Rotation.from_rotvec(true_root)
+    return np.degrees((fitted.inv() * true).magnitude())
+
+
 def heldout_frames(num_frames: int, keyframes: np.ndarray, limit: int) -> np.ndarray:
     """Up to ``limit`` frames that are not key-frames, evenly spread."""
     rest = np.setdiff1d(np.arange(num_frames), keyframes)
@@ -725,6 +758,8 @@ def evaluate_reconstruction(
     joint_mm = pa_mpjpe(mine, theirs)
 
     ious = _silhouettes(body, verts, recon.camera, gt.masks[idx])
+    root_deg = root_orientation_error_deg(recon.poses[:, 0], recon.camera.R, gt.poses[idx][:, 0],
+                                          truth.scene.camera.R)  # fmt: skip
 
     held = heldout_frames(n, idx, max_heldout)
     heldout = _heldout_psnr(recon, body, truth, surface.alignment, held)
@@ -756,6 +791,9 @@ def evaluate_reconstruction(
             psnr_rigid_db=psnr_rigid,
             missed_fraction=heldout.missed_fraction,
             missed_error_share=heldout.missed_error_share,
+            root_error_deg=float(np.median(root_deg)),
+            root_error_max_deg=float(root_deg.max()),
+            root_off_frames=int((root_deg > ROOT_OFF_DEG).sum()),
         ),
         heat,
     )

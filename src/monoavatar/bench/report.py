@@ -239,6 +239,10 @@ def _group(runs: list[RunResult]) -> dict[str, Any]:
     out["texture_psnr_rigid_db"] = _mean([m.psnr_rigid_db for m in ms])
     out["texture_missed_fraction"] = _mean([m.missed_fraction for m in ms])
     out["texture_missed_error_share"] = _mean([m.missed_error_share for m in ms])
+    out["root_error_deg"] = _mean([m.root_error_deg for m in ms])
+    out["root_error_max_deg"] = max((m.root_error_max_deg for m in ms
+                                     if m.root_error_max_deg is not None), default=None)
+    out["root_off_frames"] = sum(m.root_off_frames or 0 for m in ms)
     out["keyframes"] = _mean([float(m.keyframes) for m in ms])
     out["timings_s"] = {s: _mean([m.timings.get(s) for m in ms]) for s in STAGES}
     out["reconstruct_seconds"] = _mean([m.reconstruct_seconds for m in ms])
