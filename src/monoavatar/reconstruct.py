@@ -102,7 +102,7 @@ class ReconstructConfig:
             (:mod:`monoavatar.fit.flow_refine`, Paper A's analysis by synthesis). Two bench
             subjects, 30 key-frames, one round: held-out texture PSNR +0.07 and +0.23 dB,
             PA-MPJPE −0.9 and −1.4 mm, key-frame IoU +0.01; about 0.25 s per key-frame
-            (28 s for 120).
+            (about 30 s for 120).
         perception_settings: options of mediapipe perception (:func:`perceive`), e.g. its
             GrabCut refinement of the mask boundary (``--no-grabcut`` turns it off).
         evaluate: for a synth folder, measure the surface error against its ground truth

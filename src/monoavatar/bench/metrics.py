@@ -84,8 +84,8 @@ __all__ = [
     "heldout_frames",
     "load_truth",
     "read_obj",
-    "root_orientation_error_deg",
     "read_reconstruction",
+    "root_orientation_error_deg",
     "surface_metrics",
 ]
 

@@ -81,8 +81,8 @@ class PerceptionSettings:
             540² frame). Mediapipe's mask comes from a low-resolution network and reaches a
             pixel or two past the outline; on the bench suite's 9 turn-arounds (30 key-frames
             each, low noise) the mask IoU rose from 0.969 to 0.992 with a 4 px band (the same with
-            8 px), and the reconstructions' surface error on 4 of them fell from 3.32 to
-            3.16 mm. Heavy blur and noise leave GrabCut less to go by: on 30-frame scenes with
+            8 px), and the whole suite's surface error (estimated poses) fell from 3.24 to
+            3.11 mm. Heavy blur and noise leave GrabCut less to go by: on 30-frame scenes with
             plain, gradient and clutter backgrounds, the 4 px band gained 0.8 to 1.3 IoU points
             at the ``medium`` noise level and changed -0.7 to +0.1 points at ``high`` (an 8 px
             band: -1.0 to -0.3), hence the narrow default band.
