@@ -3,6 +3,7 @@ heat maps."""
 
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -101,6 +102,28 @@ def test_table_has_published_columns(tmp_path):
     assert "failed: RuntimeError: boom" in table
     rows = [line for line in table.splitlines() if line.startswith("| clothed (like BUFF)")]
     assert rows and "5.37" in rows[0] and "3.40" in rows[0]
+
+
+def test_table_shows_the_root_orientation_error(tmp_path):
+    res = make_results(tmp_path)
+    for i, (median, worst, off) in enumerate(((4.0, 12.0, 0), (8.0, 45.0, 2))):
+        r = res.runs[i]
+        r.metrics = replace(r.metrics, root_error_deg=median, root_error_max_deg=worst,
+                            root_off_frames=off)  # fmt: skip
+    res.aggregate = aggregate(res.runs, MODES)
+    table = render_markdown(res)
+    def split(line: str) -> list[str]:
+        return [c.strip() for c in line.strip().strip("|").split("|")]
+
+    header = split(next(line for line in table.splitlines() if "| root (°) |" in line))
+    column = header.index("root (°)")
+    cells = {}
+    for line in table.splitlines():
+        parts = split(line)
+        if line.startswith("| estimated poses |") and len(parts) == len(header):
+            cells[parts[1]] = parts[column]
+    assert cells["minimal clothing (like D-FAUST)"] == "4.0 (12.0, 0)", cells
+    assert cells["all subjects"] == "6.0 (45.0, 2)", cells
 
 
 def test_results_files(tmp_path):

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 from PIL import Image, ImageDraw
 
-from monoavatar.bench.metrics import HeatMap, SubjectMetrics
+from monoavatar.bench.metrics import ROOT_OFF_DEG, HeatMap, SubjectMetrics
 from monoavatar.bench.suite import CATEGORIES, BenchMode, BenchSubject, BenchSuite
 
 __all__ = [
@@ -353,12 +353,16 @@ def render_markdown(results: BenchResults) -> str:
         "frame, on the true person mask (on pixels covered by both in brackets; results.json "
         "also holds texture_psnr_rigid_db, without the aligned canonical pose). Missed: the "
         "share of true person pixels the held-out renders do not cover, and (after the slash) "
-        "the share of the PSNR's squared error that lies on them.",
+        "the share of the PSNR's squared error that lies on them. Root: the angle between the "
+        "fitted and the true root (pelvis) orientation at the key-frames in camera axes "
+        "(PA-MPJPE cannot see a body facing the wrong way): the mean of the subjects' "
+        "medians, in brackets the worst key-frame and how many key-frames are more than "
+        f"{ROOT_OFF_DEG:.0f}° off.",
         "",
         "| mode | subjects | surface (mm) | rigid only (mm) | body only (mm) | "
         "shape-only baseline (mm) | PA-MPJPE (mm) | silhouette IoU | texture PSNR (dB) | "
-        "missed (% px / % error) |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "missed (% px / % error) | root (°) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for mode in results.modes:
         for g in groups:
@@ -372,12 +376,15 @@ def render_markdown(results: BenchResults) -> str:
             frac, share = a.get("texture_missed_fraction"), a.get("texture_missed_error_share")
             if frac is not None and share is not None:
                 missed = f"{100 * frac:.1f} / {100 * share:.0f}"
+            root = _fmt(a.get("root_error_deg"), 1)
+            if a.get("root_error_max_deg") is not None:
+                root += f" ({_fmt(a.get('root_error_max_deg'), 1)}, {a.get('root_off_frames', 0)})"
             lines.append(
                 f"| {mode.label} | {_group_label(g)} | {_pm(a)} | "
                 f"{_fmt(a.get('surface_error_rigid_mm'))} | "
                 f"{_fmt(a.get('body_only_error_mm'))} | {_fmt(a.get('shape_only_error_mm'))} | "
                 f"{_fmt(a.get('pa_mpjpe_mm'), 1)} | {_fmt(a.get('silhouette_iou'), 3)} | {psnr} | "
-                f"{missed} |"
+                f"{missed} | {root} |"
             )
 
     rt = PUBLISHED["runtime"]
