@@ -42,7 +42,7 @@ def _fast_config(**kw: object) -> ReconstructConfig:
         pose=PoseSettings(iterations=12, init_iterations=20, silhouette_points=300,
                           boundary_points=80),
         shape=ShapeSettings(rounds=2, rays_per_frame=80),
-        texture=TextureSettings(dilation=2), refine_rounds=1,
+        texture=TextureSettings(dilation=2), refine_rounds=1, flow_rounds=1,  # each stage once
         **kw,  # type: ignore[arg-type]
     )  # fmt: skip
 

@@ -243,13 +243,15 @@ def _add_reconstruct(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-offsets", action="store_true",
                    help="fit the body model's shape only, without per-vertex offsets "
                    "(the baseline of the benchmark)")  # fmt: skip
-    p.add_argument("--refine-rounds", type=int, default=1, metavar="R",
-                   help="rounds of pose re-fitting with the consensus shape, each followed by "
-                   "the shape again (default 1; each round takes about 40 s for 120 frames)")
-    p.add_argument("--flow-rounds", type=int, default=1, metavar="R",
+    p.add_argument("--refine-rounds", type=int, default=0, metavar="R",
+                   help="rounds of pose re-fitting with the consensus shape by keypoints and "
+                   "silhouette, each followed by the shape again, before the texture (default "
+                   "0: the flow rounds re-fit the poses with the shape)")
+    p.add_argument("--flow-rounds", type=int, default=2, metavar="R",
                    help="rounds of key-frame pose refinement by optical flow from the textured "
-                   "avatar to each frame, each followed by the texture again (default 1; "
-                   "about 0.25 s per key-frame and round; 0 turns it off)")
+                   "avatar to each frame and by the outline, each followed by the shape and "
+                   "the texture again (default 2; about 0.2 s per key-frame and round for the "
+                   "flow, plus a shape and a texture; 0 turns it off)")
     p.add_argument("--model", default="anny",
                    help="body model: anny (default) or a path to your SMPL .npz/.pkl")  # fmt: skip
     p.set_defaults(run=_run_reconstruct)

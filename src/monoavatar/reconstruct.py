@@ -6,10 +6,12 @@ Stages (each a function from typed inputs to a typed result, timed in ``report.j
 2. **perception**: person masks and 2D keypoints (mediapipe, cached on disk), or the ground
    truth of a ``monoavatar synth`` folder, or a People-Snapshot folder's own files;
 3. **poses** (Sec. B.3.2): :func:`monoavatar.fit.pose.fit_poses`;
-4. **shape** (Sec. B.3.3): :func:`monoavatar.fit.shape.fit_consensus_shape`;
+4. **shape** (Sec. B.3.3): :func:`monoavatar.fit.shape.fit_consensus_shape` (and
+   ``refine_rounds`` rounds of pose re-fit and shape, none by default);
 5. **texture** (Sec. B.3.4): :func:`monoavatar.texture.build_texture`; then
    ``flow_rounds`` rounds of key-frame poses refined by optical flow from the textured
-   avatar's render to each frame (:mod:`monoavatar.fit.flow_refine`) and the texture again;
+   avatar's render to each frame and by the outline (:mod:`monoavatar.fit.flow_refine`),
+   each followed by the shape and the texture again;
 6. **export**: ``avatar.glb``, ``avatar.obj`` (+ ``.mtl``, ``texture.png``), ``params.npz``,
    ``report.json``, ``preview/``.
 
@@ -90,19 +92,20 @@ class ReconstructConfig:
         body_model: ``"anny"`` or a path to a user's SMPL file.
         offsets: fit per-vertex offsets (False: the shape-only baseline).
         refine_rounds: rounds of pose ↔ shape alternation after the first consensus shape:
-            poses re-fitted with the consensus shape and offsets, then the shape again
-            (``refine_poses``). The first pass's shape comes from 5 frames' keypoints; the
-            consensus shape from every frame's silhouette is better, and poses fitted with it
-            unpose consistent rays. Turn-around with long sleeves, 120 frames, mediapipe:
-            surface error 10.0 → 9.2 → 8.5 mm with 0, 1, 2 rounds (≈ 40 s each); bench
-            subject minimal-s19, 30 key-frames: 5.17 → 5.03 → 5.45 mm; whole bench suite:
-            7.27 mm with 1 round, 7.73 mm with 2.
+            poses re-fitted with the consensus shape and offsets by the pose energy, then the
+            shape again (``refine_poses``). Off by default: the flow rounds re-fit the poses
+            with the consensus shape too, with the texture and the outline as well, and
+            replace it (3 bench subjects, 30 key-frames, 2 flow rounds: surface error 2.55 mm,
+            held-out PSNR 22.80 dB without a refine round; 2.67 mm and 22.43 dB with one and
+            1 flow round, the earlier default).
         flow_rounds: rounds of key-frame pose refinement by optical flow from the textured
-            avatar's render to each frame, each followed by the texture again
-            (:mod:`monoavatar.fit.flow_refine`, Paper A's analysis by synthesis). Two bench
-            subjects, 30 key-frames, one round: held-out texture PSNR +0.07 and +0.23 dB,
-            PA-MPJPE −0.9 and −1.4 mm, key-frame IoU +0.01; about 0.25 s per key-frame
-            (about 30 s for 120).
+            avatar's render to each frame and by the outline
+            (:mod:`monoavatar.fit.flow_refine`, Paper A's analysis by synthesis), each
+            followed by the shape and the texture again. 3 bench subjects (minimal-s3,
+            minimal-s19, clothed-tight-s24), 30 key-frames: surface error 2.90 → 2.62 → 2.55
+            → 2.49 mm, held-out texture PSNR 22.12 → 22.47 → 22.80 → 23.05 dB, key-frame IoU
+            0.943 → 0.951 → 0.960 → 0.964 for 0 (with one refine round), 1, 2 and 3 rounds;
+            about 0.2 s per key-frame and round for the flow, plus a shape and a texture.
         perception_settings: options of mediapipe perception (:func:`perceive`), e.g. its
             GrabCut refinement of the mask boundary (``--no-grabcut`` turns it off).
         evaluate: for a synth folder, measure the surface error against its ground truth
@@ -120,8 +123,8 @@ class ReconstructConfig:
     poses: str = "fit"
     body_model: str = "anny"
     offsets: bool = True
-    refine_rounds: int = 1
-    flow_rounds: int = 1
+    refine_rounds: int = 0
+    flow_rounds: int = 2
     evaluate: bool = True
     progress: bool = True
     pose: PoseSettings = field(default_factory=PoseSettings)
@@ -592,6 +595,10 @@ def reconstruct(input_path: str | Path, out_dir: str | Path,
             t0 = time.perf_counter()
             track = run_flow_refine(body, inputs, track, shape, texture, sh, config)
             timings["flow"] = timings.get("flow", 0.0) + time.perf_counter() - t0
+            t0 = time.perf_counter()
+            shape = run_shape(body, inputs, track, config)  # the shape from the new poses
+            track = shifted_track(track, shape)
+            timings["shape"] += time.perf_counter() - t0
             t0 = time.perf_counter()
             texture, sh = run_texture(body, inputs, track, shape, config)
             timings["texture"] += time.perf_counter() - t0

@@ -314,6 +314,36 @@ def test_coverage_energy_closed_form_and_padding() -> None:
     assert torch.autograd.gradcheck(lambda p: energies.coverage_energy(p, targets, sigma), (x,))
 
 
+def test_correspondence_energy_point_to_point_and_point_to_line_closed_forms() -> None:
+    sigma, scale = 1.0, 50.0
+    projected = _t([[[10.0, 10.0], [20.0, 5.0], [0.0, 0.0]]])
+    targets = _t([[[13.0, 14.0], [20.0, 5.0], [9.0, 9.0]]])
+    valid = torch.tensor([[True, True, False]])
+    r2 = np.array([25.0, 0.0]) / scale**2  # |(−3, −4)| = 5 px; the invalid point does not count
+    expected = (sigma**2 * r2 / (sigma**2 + r2)).mean()
+    got = energies.correspondence_energy(projected, targets, valid, _t([scale]), sigma)
+    assert float(got) == pytest.approx(expected, rel=1e-12)
+    # along unit normals only: the first offset (−3, −4) has −4 along (0, 1), none along (1, 0)
+    for normal, along in (([0.0, 1.0], 4.0), ([1.0, 0.0], 3.0), ([0.6, 0.8], 5.0)):
+        normals = _t([[normal, [1.0, 0.0], [1.0, 0.0]]])
+        r2 = np.array([along**2, 0.0]) / scale**2
+        expected = (sigma**2 * r2 / (sigma**2 + r2)).mean()
+        got = energies.correspondence_energy(projected, targets, valid, _t([scale]), sigma,
+                                             normals)  # fmt: skip
+        assert float(got) == pytest.approx(expected, rel=1e-12), normal
+    # sliding along the line costs nothing
+    slid = projected + _t([[[1.0, 0.0], [7.0, 0.0], [0.0, 0.0]]]) * 3.0
+    normals = _t([[[0.0, 1.0], [0.0, 1.0], [0.0, 1.0]]])
+    a = energies.correspondence_energy(projected, targets, valid, _t([scale]), sigma, normals)
+    b = energies.correspondence_energy(slid, targets, valid, _t([scale]), sigma, normals)
+    assert float(a) == pytest.approx(float(b), rel=1e-12)
+    x = projected.clone().requires_grad_(True)
+    assert torch.autograd.gradcheck(
+        lambda p: energies.correspondence_energy(p, targets, valid, _t([scale]), sigma, normals),
+        (x,),
+    )
+
+
 # -- pose prior, limits -----------------------------------------------------------------------
 
 

@@ -9,6 +9,8 @@ axes (rotations that keypoints and outline barely show).
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import torch
@@ -17,6 +19,7 @@ from monoavatar.body.model import BodyModel
 from monoavatar.camera import PinholeCamera
 from monoavatar.fit.flow_refine import (
     FlowRefineSettings,
+    contour_correspondences,
     flow_correspondences,
     refine_poses_with_flow,
 )
@@ -186,7 +189,7 @@ def test_flow_recovers_turns_keypoints_and_silhouette_do_not_show(anny32: BodyMo
     for name, weight in (("flow", FlowRefineSettings().weight), ("keypoints and silhouette", 1e-6)):
         track = start
         for _ in range(2):  # the render is made from the current poses: two rounds
-            settings = FlowRefineSettings(iterations=30, weight=weight)
+            settings = FlowRefineSettings(iterations=30, weight=weight, contour_weight=0.0)
             track = refine_poses_with_flow(anny32, obs, images, track, shape, offsets, texture,
                                            None, settings, pose_settings)  # fmt: skip
         results[name] = (_visible_reprojection_px(anny32, track, poses, obs.camera),
@@ -200,11 +203,101 @@ def test_flow_recovers_turns_keypoints_and_silhouette_do_not_show(anny32: BodyMo
     assert flow[0] < 0.6 * plain[0] and flow[1] < 0.5 * plain[1], (before, results)
 
 
+def _sphere(radius: float, centre: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    import trimesh
+
+    mesh = trimesh.creation.icosphere(subdivisions=5, radius=radius)
+    return np.asarray(mesh.vertices) + centre, np.asarray(mesh.faces)
+
+
+def test_contour_correspondences_on_a_sphere_measure_its_offset_and_skip_hidden_ones() -> None:
+    """A sphere on the optical axis projects to a disc of radius f r / sqrt(D² − r²); the
+    observed mask is that disc moved by a known sub-pixel offset. The matched vertices lie on
+    the sphere's contour generator, their edge targets on the moved circle, and the offsets
+    along the edge normals give back the move. A second sphere hidden behind the first gets no
+    match."""
+    camera = PinholeCamera(K=np.array([[FOCAL, 0, SIZE / 2], [0, FOCAL, SIZE / 2], [0, 0, 1]]),
+                           R=np.eye(3), t=np.zeros(3), width=SIZE, height=SIZE)  # fmt: skip
+    radius, depth = 0.3, 2.6
+    front_v, front_f = _sphere(radius, np.array([0.0, 0.0, depth]))
+    back_v, back_f = _sphere(0.2, np.array([0.05, 0.0, depth + 0.8]))  # hidden: 0.2 < 0.3
+    vertices = np.concatenate([front_v, back_v])
+    faces = np.concatenate([front_f, back_f + len(front_v)])
+    frags = rasterize(vertices, faces, camera)
+    disc = FOCAL * radius / np.sqrt(depth**2 - radius**2)  # about 41.8 px
+    move = np.array([1.2, -0.7])
+    ys, xs = np.mgrid[0:SIZE, 0:SIZE] + 0.5
+    mask = np.hypot(xs - SIZE / 2 - move[0], ys - SIZE / 2 - move[1]) < disc
+
+    settings = FlowRefineSettings()
+    ids, targets, normals = contour_correspondences(vertices, faces, camera, frags, mask,
+                                                    settings)  # fmt: skip
+    assert len(ids) > 150, len(ids)  # the disc's outline is about 260 px long
+    assert (ids < len(front_v)).all()  # none on the hidden sphere
+    view = vertices[ids] / np.linalg.norm(vertices[ids], axis=1, keepdims=True)
+    normal_3d = (vertices[ids] - [0.0, 0.0, depth]) / radius
+    assert np.abs(np.einsum("nc,nc->n", view, normal_3d)).max() <= settings.contour_max_cos
+    # targets on the moved circle (sub-pixel edge of a binary mask), normals pointing out
+    centre = np.array([SIZE / 2, SIZE / 2]) + move
+    deviation = np.linalg.norm(targets - centre, axis=1) - disc
+    assert np.abs(deviation).mean() < 0.1 and np.abs(deviation).max() < 0.5, deviation
+    outward = (targets - centre) / np.linalg.norm(targets - centre, axis=1, keepdims=True)
+    assert np.einsum("nc,nc->n", outward, normals).min() > 0.95
+    # the edge lies `move` away from the projections, along the normals: least squares
+    projected = camera.project(torch.as_tensor(vertices[ids]))[0].numpy()
+    along = np.einsum("nc,nc->n", targets - projected, normals)
+    estimate, *_ = np.linalg.lstsq(normals, along, rcond=None)
+    np.testing.assert_allclose(estimate, move, atol=0.15)
+
+
+def test_contour_term_pulls_the_outline_onto_the_mask(anny32: BodyModel) -> None:
+    """Poses moved 1.5 cm sideways (about 2 px) and with the arms raised by 4°: one
+    refinement with the outline term brings the rendered outline closer to the mask than the
+    silhouette terms of the pose energy alone (the flow term off in both). Measured: 1 − IoU
+    0.209 at the start, 0.013 with the outline term, 0.223 without (the noisy keypoints
+    win)."""
+    obs, images, poses, texture = _scene(anny32)
+    start_poses = poses.copy()
+    for side, sign in (("l", 1.0), ("r", -1.0)):
+        start_poses[:, anny32.joint_index(f"shoulder_{side}"), 2] += sign * np.radians(4.0)
+    start = replace(_track(anny32, start_poses, obs.camera),
+                    translations=np.tile([0.015, 0.0, 0.0], (len(poses), 1)))  # fmt: skip
+    pose_settings = PoseSettings(silhouette_points=600, boundary_points=150, smooth_weight=0.0)
+    shape = anny32.default_shape(1)[0].double().numpy()
+    offsets = np.zeros((anny32.num_vertices, 3))
+
+    def outline_error(track: PoseTrack) -> float:
+        """1 − IoU of the rendered body with the mask, mean over frames."""
+        with torch.no_grad():
+            out = anny32(pose=torch.as_tensor(track.poses, dtype=anny32.dtype),
+                         translation=torch.as_tensor(track.translations, dtype=anny32.dtype))
+        ious = []
+        for k in range(len(poses)):
+            covered = rasterize(out.vertices[k], anny32.faces, obs.camera).mask.numpy()
+            ious.append((covered & obs.masks[k]).sum() / (covered | obs.masks[k]).sum())
+        return 1.0 - float(np.mean(ious))
+
+    errors = {}
+    for weight in (0.0, FlowRefineSettings().contour_weight):
+        settings = FlowRefineSettings(weight=1e-6, contour_weight=weight)
+        track = refine_poses_with_flow(anny32, obs, images, start, shape, offsets, texture, None,
+                                       settings, pose_settings)  # fmt: skip
+        errors[weight] = outline_error(track)
+    before = outline_error(start)
+    with_contour, without = errors[FlowRefineSettings().contour_weight], errors[0.0]
+    assert with_contour < 0.5 * before, (before, errors)
+    assert with_contour < 0.7 * without, (before, errors)
+
+
 def test_settings_are_checked() -> None:
     with pytest.raises(ValueError, match="points"):
         FlowRefineSettings(points=0)
     with pytest.raises(ValueError, match="max_flow"):
         FlowRefineSettings(max_flow=0.0)
+    with pytest.raises(ValueError, match="contour_max_cos"):
+        FlowRefineSettings(contour_max_cos=1.0)
+    with pytest.raises(ValueError, match="contour_weight"):
+        FlowRefineSettings(contour_weight=-1.0)
 
 
 def test_frame_counts_must_match(anny32: BodyModel) -> None:

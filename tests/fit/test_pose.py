@@ -276,8 +276,8 @@ def test_refit_recovers_a_back_view_fit_stalled_far_off(anny32: BodyModel) -> No
         rest, joints = anny32.rest_shape(torch.zeros(1, anny32.shape_dim, dtype=anny32.dtype))
     ctx = posefit._context(anny32, scene.obs.camera, settings, apose_prior(anny32), rest[0],
                            joints[0])  # fmt: skip
-    ids, sil = posefit._subset_ids(anny32, settings.silhouette_points, settings.seed)
-    sub = posefit._make_subset(anny32, rest[0], joints[0], ids, sil)
+    ids = posefit._subset_ids(anny32, settings.silhouette_points, settings.seed)
+    sub = posefit._make_subset(anny32, rest[0], joints[0], ids)
     frame = posefit._frames(scene.obs, np.array([0]), settings, anny32.dtype)
     start = poses.copy()
     start[0, 0, 1] += np.radians(120.0)
@@ -408,3 +408,28 @@ def test_refine_poses_with_offsets_recovers_the_pose_of_a_clothed_body(anny32: B
     # the IoU is of the dressed body (shape + D) with the dressed masks (measured 0.94-0.99)
     assert np.median(refined.silhouette_iou) > 0.93, refined.silhouette_iou.round(3)
     assert not refined.failed.any() and "refine" in refined.timings
+
+
+def test_subset_poses_keypoints_and_points_as_the_whole_body_does(anny32: BodyModel) -> None:
+    """The subset's keypoints (from its per-joint basis) and its points with offsets D equal
+    those of the whole body posed by its forward pass and regressed."""
+    import monoavatar.fit.pose as posefit
+
+    rng = np.random.default_rng(3)
+    shape = torch.as_tensor(rng.normal(0.0, 0.5, (1, anny32.shape_dim)), dtype=anny32.dtype)
+    pose = torch.as_tensor(rng.normal(0.0, 0.3, (2, anny32.num_joints, 3)), dtype=anny32.dtype)
+    translation = torch.as_tensor(rng.normal(0.0, 0.5, (2, 3)), dtype=anny32.dtype)
+    offsets = torch.as_tensor(rng.normal(0.0, 0.01, (anny32.num_vertices, 3)),
+                              dtype=anny32.dtype)  # fmt: skip
+    with torch.no_grad():
+        rest, joints = anny32.rest_shape(shape)
+        ids = posefit._subset_ids(anny32, 200, 0)
+        sub = replace(posefit._make_subset(anny32, rest[0], joints[0], ids), offsets=offsets[ids])
+        keypoints, posed_joints, points = sub.pose(lbs.axis_angle_to_matrix(pose), translation)
+        plain = anny32(shape=shape.expand(2, -1), pose=pose, translation=translation)
+        with_d = anny32(shape=shape.expand(2, -1), pose=pose, translation=translation,
+                        offsets=offsets)  # fmt: skip
+    # metres; float32 sums in another order
+    np.testing.assert_allclose(keypoints, anny32.keypoints(plain.vertices), atol=5e-5)
+    np.testing.assert_allclose(posed_joints, plain.joints, atol=2e-6)
+    np.testing.assert_allclose(points, with_d.vertices[:, ids], atol=2e-6)

@@ -144,20 +144,29 @@ def coverage_energy(projected: Tensor, targets: SilhouetteTargets, sigma: float 
     """Observed mask the model misses (the w_i (1 − I_rn) C̄ part of Eq. B.4): each observed
     boundary sample's distance to the nearest projected model point, robustly penalised,
     averaged over samples. Differentiable through the nearest model point. (B,)."""
-    d2 = torch.cdist(targets.boundary.to(projected.dtype), projected) ** 2  # (B, P, N)
-    nearest = d2.min(dim=-1).values / targets.scale[:, None] ** 2
+    boundary = targets.boundary.to(projected.dtype)  # (B, P, 2)
+    with torch.no_grad():  # which point is nearest; the distance to it is differentiated
+        index = torch.cdist(boundary, projected).argmin(dim=-1)  # (B, P)
+    points = torch.gather(projected, 1, index.unsqueeze(-1).expand(-1, -1, 2))
+    nearest = ((boundary - points) ** 2).sum(-1) / targets.scale[:, None] ** 2
     valid = targets.boundary_valid.to(projected.dtype)
     return (geman_mcclure(nearest, sigma) * valid).sum(-1) / valid.sum(-1).clamp_min(1.0)
 
 
 def correspondence_energy(
-    projected: Tensor, targets: Tensor, valid: Tensor, scale: Tensor, sigma: float = 1.0
+    projected: Tensor, targets: Tensor, valid: Tensor, scale: Tensor, sigma: float = 1.0,
+    normals: Tensor | None = None,
 ) -> Tensor:
     """Model points pulled to 2D correspondences (from optical flow; Eq. A.1 and the E_match of
     Eq. C.13 written on points instead of pixels): mean over the valid points of the robust
     ρ(|p − c| / scale). projected, targets (B, N, 2) pixels; valid (B, N) bool; scale (B,)
-    pixels. Returns (B,) (0 where no point is valid)."""
-    r2 = ((projected - targets) ** 2).sum(-1) / scale[:, None] ** 2
+    pixels. With unit ``normals`` (B, N, 2) only the offset along them counts, ``(p − c) · n``
+    (a point on an outline matched to the observed edge: point-to-line, free to slide along
+    it). Returns (B,) (0 where no point is valid)."""
+    if normals is None:
+        r2 = ((projected - targets) ** 2).sum(-1) / scale[:, None] ** 2
+    else:
+        r2 = ((projected - targets) * normals).sum(-1) ** 2 / scale[:, None] ** 2
     w = valid.to(projected.dtype)
     return (w * geman_mcclure(r2, sigma)).sum(-1) / w.sum(-1).clamp_min(1.0)
 

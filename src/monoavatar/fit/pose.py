@@ -206,33 +206,29 @@ class PoseTrack:
 
 @dataclass(frozen=True)
 class _Subset:
-    """The body with a fixed shape, posed only at a subset of vertices."""
+    """The body with a fixed shape, posed only at a subset of vertices (the silhouette points)
+    and at its keypoints."""
 
-    rest: Tensor  # (N, 3) rest positions of the subset
-    weights: Tensor  # (N, J)
+    rest: Tensor  # (M, 3) rest positions of the silhouette points
+    weights: Tensor  # (M, J)
     rest_joints: Tensor  # (J, 3)
-    keypoint_weights: Tensor  # (33, N): keypoints as combinations of the subset
-    silhouette: Tensor  # (M,) positions in the subset used for the silhouette terms
+    keypoint_basis: Tensor  # (33, J, 4): see _keypoint_basis
     parents: tuple[int, ...]
     offsets: Tensor | None = None  # (M, 3) canonical offsets D of the silhouette points
 
     def pose(self, rotations: Tensor, translation: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         """rotations (B, J, 3, 3), translation (B, 3) → keypoints (B, 33, 3) of the body,
         joints (B, J, 3) and silhouette points (B, M, 3) (with the offsets, when the subset
-        has them)."""
+        has them; the keypoints go without)."""
         b = rotations.shape[0]
         joints = self.rest_joints.expand(b, -1, -1)
         transforms = lbs.joint_transforms(rotations, joints, self.parents, translation)
-        vertices = lbs.skin(self.rest.expand(b, -1, -1), self.weights, transforms)
         posed_joints = transforms[..., :3, 3] + (
             transforms[..., :3, :3] @ joints.unsqueeze(-1)
         ).squeeze(-1)
-        silhouette = vertices[:, self.silhouette]
-        if self.offsets is not None:  # LBS is affine in the rest position: add the turned D
-            blend = torch.einsum("mj,bjkl->bmkl", self.weights[self.silhouette],
-                                 transforms[:, :, :3, :3])  # fmt: skip
-            silhouette = silhouette + (blend @ self.offsets.unsqueeze(-1)).squeeze(-1)
-        keypoints = torch.einsum("kn,bnc->bkc", self.keypoint_weights, vertices)
+        rest = self.rest if self.offsets is None else self.rest + self.offsets
+        silhouette = lbs.skin(rest.expand(b, -1, -1), self.weights, transforms)
+        keypoints = torch.einsum("bjmn,kjn->bkm", transforms[:, :, :3, :], self.keypoint_basis)
         return keypoints, posed_joints, silhouette
 
 
@@ -267,28 +263,33 @@ class _Variables:
         return pose.double().numpy().copy(), self.translation.detach().double().numpy().copy()
 
 
-def _subset_ids(body: BodyModel, count: int, seed: int) -> tuple[Tensor, Tensor]:
-    """Vertex ids of the subset (keypoint-regressor vertices and ``count`` random ones) and
-    the positions, within the subset, of the random ones (the silhouette points)."""
-    kp_ids = torch.nonzero(body.keypoint_weights.abs().sum(0) > 0).flatten()
+def _subset_ids(body: BodyModel, count: int, seed: int) -> Tensor:
+    """(M,) ids of ``count`` random vertices: the silhouette points."""
     rng = np.random.default_rng(seed)
-    sil = torch.from_numpy(rng.choice(body.num_vertices, min(count, body.num_vertices), False))
-    ids = torch.unique(torch.cat([kp_ids, sil]))
-    position = torch.full((body.num_vertices,), -1, dtype=torch.long)
-    position[ids] = torch.arange(len(ids))
-    return ids, position[sil]
+    return torch.from_numpy(rng.choice(body.num_vertices, min(count, body.num_vertices), False))
 
 
-def _make_subset(body: BodyModel, rest: Tensor, joints: Tensor, ids: Tensor,
-                 silhouette: Tensor) -> _Subset:  # fmt: skip
-    """The subset for rest vertices (V, 3) and rest joints (J, 3) of one shape (differentiable
-    in both)."""
+def _keypoint_basis(body: BodyModel, rest: Tensor) -> Tensor:
+    """(33, J, 4) ``Σ_v K_kv w_vj (x_v, 1)`` for the keypoint regressor K (33, V), skinning
+    weights w and rest vertices x (V, 3): LBS is linear in the rest position, so keypoint k of
+    the posed body is ``Σ_j A_j[:3] basis_kj`` for joint transforms A (exactly what posing all
+    of K's vertices and regressing gives, at the cost of 33 points instead of thousands).
+    Differentiable in ``rest``."""
+    k = body.keypoint_weights
+    used = torch.nonzero(k.abs().sum(0) > 0).flatten()
+    x = rest[used]
+    homogeneous = torch.cat([x, torch.ones_like(x[:, :1])], dim=1)  # (U, 4)
+    return torch.einsum("ku,uj,un->kjn", k[:, used], body.skin_weights[used], homogeneous)
+
+
+def _make_subset(body: BodyModel, rest: Tensor, joints: Tensor, ids: Tensor) -> _Subset:
+    """The subset at vertex ids (M,) for rest vertices (V, 3) and rest joints (J, 3) of one
+    shape (differentiable in both)."""
     return _Subset(
         rest=rest[ids],
         weights=body.skin_weights[ids],
         rest_joints=joints,
-        keypoint_weights=body.keypoint_weights[:, ids],
-        silhouette=silhouette,
+        keypoint_basis=_keypoint_basis(body, rest),
         parents=tuple(body.parents),
     )
 
@@ -305,12 +306,15 @@ class Correspondences:
         valid: (B, M) bool, which points have a target.
         weight: weight of the term (its energy is in percent of the person's height).
         sigma: Geman-McClure scale, percent of the person's height.
+        normals: (B, M, 2) unit image normals: only the offset along them counts (outline
+            points matched to the observed edge); None: the whole 2D offset.
     """
 
     targets: Tensor
     valid: Tensor
     weight: float
     sigma: float
+    normals: Tensor | None = None
 
 
 @dataclass(frozen=True)
@@ -320,6 +324,7 @@ class _Frames:
     keypoints: Tensor  # (B, 33, 3), scaled confidences, low ones zeroed
     targets: energies.SilhouetteTargets
     flow: Correspondences | None = None  # only in the flow refinement
+    contour: Correspondences | None = None  # outline points to the observed edge (ditto)
 
 
 def _frames(obs: Observations, idx: np.ndarray, settings: PoseSettings,
@@ -387,11 +392,12 @@ def _energy_terms(ctx: _Context, sub: _Subset, var: _Variables, frames: _Frames
                                                 ctx.prior.precision),  # fmt: skip
         "limits": energies.hinge_limit_energy(var.body, ctx.limits),
     }
-    if frames.flow is not None:
-        terms["flow"] = energies.correspondence_energy(
-            sil_px, frames.flow.targets, frames.flow.valid, frames.targets.scale,
-            frames.flow.sigma,
-        )  # fmt: skip
+    for name in ("flow", "contour"):
+        c = getattr(frames, name)
+        if c is not None:
+            terms[name] = energies.correspondence_energy(
+                sil_px, c.targets, c.valid, frames.targets.scale, c.sigma, c.normals
+            )
     pelvis, neck = body.joint_index("pelvis"), body.joint_index("neck")
     pen = torch.zeros_like(terms["limits"])
     for side in ("l", "r"):
@@ -404,9 +410,10 @@ def _energy_terms(ctx: _Context, sub: _Subset, var: _Variables, frames: _Frames
     return terms
 
 
-def _weighted(ctx: _Context, terms: dict[str, Tensor], flow_weight: float = 0.0) -> Tensor:
-    """The weighted sum of the terms; the flow term (when present) counts with
-    ``flow_weight``."""
+def _weighted(ctx: _Context, terms: dict[str, Tensor], flow_weight: float = 0.0,
+              contour_weight: float = 0.0) -> Tensor:  # fmt: skip
+    """The weighted sum of the terms; the flow and contour terms (when present) count with
+    ``flow_weight`` and ``contour_weight``."""
     s = ctx.settings
     total = (
         s.keypoint_weight * terms["keypoints"]
@@ -418,6 +425,8 @@ def _weighted(ctx: _Context, terms: dict[str, Tensor], flow_weight: float = 0.0)
     )
     if "flow" in terms:
         total = total + flow_weight * terms["flow"]
+    if "contour" in terms:
+        total = total + contour_weight * terms["contour"]
     return total
 
 
@@ -518,8 +527,8 @@ def fit_initial(
         height0 = float(_rest_height(body, shape))
     target_height = settings.height or height0
     ctx = _context(body, obs.camera, settings, prior, rest[0], joints[0])
-    ids, sil = _subset_ids(body, settings.silhouette_points, settings.seed)
-    sub = _make_subset(body, rest[0], joints[0], ids, sil)
+    ids = _subset_ids(body, settings.silhouette_points, settings.seed)
+    sub = _make_subset(body, rest[0], joints[0], ids)
     p = len(frame_ids)
     facing = _facing_camera(obs.keypoints[frame_ids[0]], settings.min_confidence)
     base = 0.0 if facing else math.pi
@@ -553,8 +562,8 @@ def fit_initial(
     def energy(with_shape: bool) -> Tensor:
         s = shape_p if with_shape else shape_p.detach()
         rest_v, rest_j = body.rest_shape(s[None])
-        total = _weighted(ctx, _energy_terms(ctx, _make_subset(body, rest_v[0], rest_j[0], ids,
-                                                               sil), var, frames)).sum()
+        total = _weighted(ctx, _energy_terms(ctx, _make_subset(body, rest_v[0], rest_j[0], ids),
+                                             var, frames)).sum()  # fmt: skip
         if with_shape:
             total = total + settings.shape_prior_weight * p * (s**2).sum()
             if settings.height is not None:
@@ -647,8 +656,8 @@ def _fit_poses(body: BodyModel, obs: Observations, settings: PoseSettings,
     with torch.no_grad():
         rest, joints = body.rest_shape(shape[None])
     ctx = _context(body, obs.camera, settings, prior, rest[0], joints[0])
-    ids, sil = _subset_ids(body, settings.silhouette_points, settings.seed)
-    sub = _make_subset(body, rest[0], joints[0], ids, sil)
+    ids = _subset_ids(body, settings.silhouette_points, settings.seed)
+    sub = _make_subset(body, rest[0], joints[0], ids)
     known = {int(i): (init_poses[k], init_trans[k]) for k, i in enumerate(init_ids)}
     poses: dict[int, np.ndarray] = {}
     trans: dict[int, np.ndarray] = {}
@@ -772,8 +781,8 @@ def _refine_poses(body: BodyModel, obs: Observations, track: PoseTrack,
     with torch.no_grad():
         rest, joints = body.rest_shape(shape[None])
     ctx = _context(body, obs.camera, settings, apose_prior(body), rest[0], joints[0])
-    ids, sil = _subset_ids(body, settings.silhouette_points, settings.seed)
-    sub = replace(_make_subset(body, rest[0], joints[0], ids, sil), offsets=d[ids][sil])
+    ids = _subset_ids(body, settings.silhouette_points, settings.seed)
+    sub = replace(_make_subset(body, rest[0], joints[0], ids), offsets=d[ids])
     poses, trans = track.poses.copy(), track.translations.copy()
     energy = np.full(n, np.nan)
     usable = np.flatnonzero(~obs.no_person)
@@ -837,13 +846,14 @@ def _fit_window(ctx: _Context, sub: _Subset, frames: _Frames, pred_p: np.ndarray
                 pred_t: np.ndarray, history: tuple[Tensor, Tensor, Tensor] | None,
                 iterations: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fit B frames together from predicted poses (B, J, 3) and translations (B, 3). Returns
-    poses, translations and the per-frame energy without the smoothness and flow terms."""
+    poses, translations and the per-frame energy without the smoothness, flow and contour terms."""
     var = _Variables(pred_p, pred_t, frames.keypoints.dtype)
     s = ctx.settings
     flow_weight = frames.flow.weight if frames.flow is not None else 0.0
+    contour_weight = frames.contour.weight if frames.contour is not None else 0.0
 
     def total() -> Tensor:
-        e = _weighted(ctx, _energy_terms(ctx, sub, var, frames), flow_weight)
+        e = _weighted(ctx, _energy_terms(ctx, sub, var, frames), flow_weight, contour_weight)
         smooth = energies.smoothness_energy(var.root(), var.body, var.translation, history)
         return (e + s.smooth_weight * smooth).sum()
 
