@@ -117,7 +117,12 @@ class ShapeSettings:
         max_match_distance: matching radius around each boundary sample, metres at the
             person's depth (converted to pixels per frame).
         contour_cos: |cos| between normal and line of sight below which a vertex counts as on
-            the contour.
+            the contour. A vertex up to asin(contour_cos) before the contour generator lies
+            inside the outline, and pulled onto a silhouette ray it pushes the outline out:
+            with 0.3 the avatar's outline lay 0.23–0.28 px outside the truth's (ground-truth
+            poses, exact masks). 3 bench subjects, 30 key-frames: surface error 2.55, 2.44,
+            2.32 and 2.40 mm with 0.3, 0.2, 0.15 and 0.1 (fewer candidates, matched farther
+            along the outline); held-out PSNR 22.80, 22.77, 22.77 and 22.59 dB.
         normal_weight: pixels per unit of normal difference in the matching.
         min_normal_dot: minimum cosine between matched image normals.
         blur: Gaussian sigma (pixels) for the boundary normals and sub-pixel edges.
@@ -159,7 +164,7 @@ class ShapeSettings:
     shape_iterations: int = 3
     irls_iterations: int = 1
     max_match_distance: float = 0.1
-    contour_cos: float = 0.3
+    contour_cos: float = 0.15
     normal_weight: float = 8.0
     min_normal_dot: float = 0.5
     blur: float = 1.5
