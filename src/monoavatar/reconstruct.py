@@ -95,14 +95,15 @@ class ReconstructConfig:
             poses re-fitted with the consensus shape and offsets by the pose energy, then the
             shape again (``refine_poses``). Off by default: the flow rounds re-fit the poses
             with the consensus shape too, with the texture and the outline as well, and
-            replace it (3 bench subjects, 30 key-frames, 2 flow rounds: surface error 2.55 mm,
-            held-out PSNR 22.80 dB without a refine round; 2.67 mm and 22.43 dB with one and
-            1 flow round, the earlier default).
+            replace it (3 bench subjects, 30 key-frames, 1 flow round, each round followed by
+            the shape, shape ``contour_cos`` 0.3: surface error 2.62 mm and held-out PSNR
+            22.47 dB without a refine round, 2.67 mm and 22.43 dB with one).
         flow_rounds: rounds of key-frame pose refinement by optical flow from the textured
             avatar's render to each frame and by the outline
             (:mod:`monoavatar.fit.flow_refine`, Paper A's analysis by synthesis), each
             followed by the shape and the texture again. 3 bench subjects (minimal-s3,
-            minimal-s19, clothed-tight-s24), 30 key-frames: surface error 2.90 → 2.62 → 2.55
+            minimal-s19, clothed-tight-s24), 30 key-frames, shape ``contour_cos`` 0.3 (its
+            default then; 0.15 took 2 rounds to 2.32 mm): surface error 2.90 → 2.62 → 2.55
             → 2.49 mm, held-out texture PSNR 22.12 → 22.47 → 22.80 → 23.05 dB, key-frame IoU
             0.943 → 0.951 → 0.960 → 0.964 for 0 (with one refine round), 1, 2 and 3 rounds;
             about 0.2 s per key-frame and round for the flow, plus a shape and a texture.

@@ -215,12 +215,14 @@ def test_contour_correspondences_on_a_sphere_measure_its_offset_and_skip_hidden_
     observed mask is that disc moved by a known sub-pixel offset. The matched vertices lie on
     the sphere's contour generator, their edge targets on the moved circle, and the offsets
     along the edge normals give back the move. A second sphere hidden behind the first gets no
-    match."""
+    match, although its outline projects 2.3 px inside the first one's, nearer to the mask's
+    edge than the first one's on the side the mask moved inwards."""
     camera = PinholeCamera(K=np.array([[FOCAL, 0, SIZE / 2], [0, FOCAL, SIZE / 2], [0, 0, 1]]),
                            R=np.eye(3), t=np.zeros(3), width=SIZE, height=SIZE)  # fmt: skip
     radius, depth = 0.3, 2.6
     front_v, front_f = _sphere(radius, np.array([0.0, 0.0, depth]))
-    back_v, back_f = _sphere(0.2, np.array([0.05, 0.0, depth + 0.8]))  # hidden: 0.2 < 0.3
+    # hidden: projected radius f r' / sqrt(D'² − r'²) ≈ 39.5 px < 41.8 px
+    back_v, back_f = _sphere(0.327, np.array([0.0, 0.0, 3.0]))
     vertices = np.concatenate([front_v, back_v])
     faces = np.concatenate([front_f, back_f + len(front_v)])
     frags = rasterize(vertices, faces, camera)

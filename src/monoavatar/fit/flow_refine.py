@@ -52,10 +52,11 @@ from monoavatar.body import BodyModel
 from monoavatar.camera import PinholeCamera
 from monoavatar.fit import pose as posefit
 from monoavatar.fit.prior import apose_prior
+from monoavatar.fit.rays import contour_candidates, match_boundary, silhouette_boundary
 from monoavatar.fit.threads import torch_threads
 from monoavatar.perception.flow import DISFlow
 from monoavatar.perception.observations import Observations
-from monoavatar.render import Fragments, rasterize
+from monoavatar.render import Fragments, rasterize, vertex_normals
 from monoavatar.texture.backproject import flow_to_frame
 
 __all__ = [
@@ -206,9 +207,6 @@ def contour_correspondences(
         vertex ids (M,), their targets on the edge (M, 2) pixels, and the edge's unit outward
         normals there (M, 2).
     """
-    from monoavatar.fit.rays import contour_candidates, match_boundary, silhouette_boundary
-    from monoavatar.render.renders import vertex_normals
-
     empty = (np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 2)))
     normals = vertex_normals(vertices, faces).numpy()
     ids, pixels, directions = contour_candidates(vertices, normals, camera,
