@@ -9,6 +9,7 @@ from scipy.spatial.transform import Rotation
 from monoavatar.bench.metrics import (
     BodyCache,
     MetricsError,
+    _held_out_figures,
     _sh_to_world,
     body_model_name,
     evaluate_reconstruction,
@@ -205,3 +206,35 @@ def test_heldout_renders_use_the_aligned_canonical_pose(tiny_scene, anny32, anny
     assert raised.psnr_rigid_db is not None
     assert raised.psnr_db == pytest.approx(base.psnr_db, abs=0.5)
     assert raised.psnr_rigid_db < raised.psnr_db - 1.0
+
+
+
+def test_heldout_figures_count_missed_and_spilled_pixels_by_region():
+    """Closed form: in two 6 x 8 frames, the person covers columns 0-3 and the render columns
+    2-5; overlap pixels are 2 levels off, missed person pixels 20, spilled render pixels 10,
+    the rest 90 (never counted)."""
+    truth = np.full((2, 6, 8, 3), 100, np.uint8)
+    person = np.zeros((2, 6, 8), bool)
+    person[..., :4] = True
+    covered = np.zeros((2, 6, 8), bool)
+    covered[..., 2:6] = True
+    pred = truth.copy()
+    pred[person & covered] += 2
+    pred[person & ~covered] += 20
+    pred[~person & covered] += 10
+    pred[~person & ~covered] += 90
+    fig = _held_out_figures(pred, truth, person, covered, "unlit")
+
+    def db(mse: float) -> float:
+        return 10.0 * np.log10(255.0**2 / mse)
+
+    # per frame: 12 overlap, 12 missed, 12 spilled pixels
+    assert fig.overlap_db == pytest.approx(db(2.0**2))
+    assert fig.mask_db == pytest.approx(db((2.0**2 + 20.0**2) / 2))
+    assert fig.union_db == pytest.approx(db((2.0**2 + 20.0**2 + 10.0**2) / 3))
+    assert fig.missed_fraction == pytest.approx(0.5)
+    assert fig.missed_error_share == pytest.approx(20.0**2 / (2.0**2 + 20.0**2))
+    # a render that covers nothing has no overlap figure
+    empty = _held_out_figures(pred, truth, person, np.zeros_like(covered), "unlit")
+    assert empty.overlap_db is None and empty.missed_fraction == 1.0
+    assert empty.union_db == empty.mask_db

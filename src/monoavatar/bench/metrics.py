@@ -45,7 +45,10 @@ reconstruction; this module only reads files, poses body models and renders.
   textured and lit as the reconstruction says (see :attr:`SubjectMetrics.texture_lighting`),
   and compared with the ground-truth frame (8-bit, the frame's own noise included) on the
   pixels of the ground-truth person mask (``psnr_db``: missed person pixels count against
-  grey) and on the pixels covered by both (``psnr_overlap_db``: texture only).
+  grey), on the pixels covered by both (``psnr_overlap_db``: texture only), and on the
+  pixels covered by either (``psnr_union_db``: missed person pixels count against grey and
+  spilled avatar pixels against the frame's background, so an outline that is too wide costs
+  as much as one that is too narrow; on the person mask alone, spill is free).
 """
 
 from __future__ import annotations
@@ -353,7 +356,8 @@ class SubjectMetrics:
         silhouette_iou: mean IoU of the posed avatar and the ground-truth masks at the
             key-frames; ``silhouette_iou_min`` the worst key-frame.
         psnr_db: texture PSNR in held-out poses on the ground-truth mask, dB (None without
-            held-out frames or texture); ``psnr_overlap_db`` on pixels covered by both.
+            held-out frames or texture); ``psnr_overlap_db`` on pixels covered by both;
+            ``psnr_union_db`` on pixels covered by either (spill counted too).
         heldout_frames: how many held-out frames the PSNR averages (MSE pooled over them).
         texture_lighting: how the held-out renders were lit: ``"estimated"`` (an albedo
             texture shaded by the reconstruction's own SH estimate ``lighting_sh`` in
@@ -397,6 +401,7 @@ class SubjectMetrics:
     root_error_deg: float | None = None
     root_error_max_deg: float | None = None
     root_off_frames: int | None = None
+    psnr_union_db: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready values (non-finite numbers become None)."""
@@ -423,6 +428,7 @@ class SubjectMetrics:
             "silhouette_iou_min": self.silhouette_iou_min,
             "texture_psnr_db": self.psnr_db,
             "texture_psnr_overlap_db": self.psnr_overlap_db,
+            "texture_psnr_union_db": self.psnr_union_db,
             "texture_psnr_rigid_db": self.psnr_rigid_db,
             "texture_missed_fraction": self.missed_fraction,
             "texture_missed_error_share": self.missed_error_share,
@@ -562,7 +568,6 @@ def _heldout_psnr(
     those joint rotations and ``alignment`` is the transform that follows them."""
     import torch
 
-    from monoavatar.eval import psnr
     from monoavatar.render import rasterize, render_textured
 
     if recon.texture is None or len(frames) == 0:
@@ -600,23 +605,35 @@ def _heldout_psnr(
         renders.append((np.clip(image.numpy(), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8))
         covered.append((frags.face_id >= 0).numpy())
     pred = np.stack(renders)  # (K, H, W, 3): the MSE is pooled over all K frames
-    truth_images = scene.frames.images[frames]
-    person = gt.masks[frames]
-    both = person & np.stack(covered)
+    return _held_out_figures(pred, scene.frames.images[frames], gt.masks[frames],
+                             np.stack(covered), lighting)  # fmt: skip
+
+
+def _held_out_figures(pred: np.ndarray, truth: np.ndarray, person: np.ndarray,
+                      covered: np.ndarray, lighting: str) -> _HeldOut:  # fmt: skip
+    """The PSNRs of renders (K, H, W, 3) uint8 against true frames (same), MSE pooled over the
+    K frames, on the true person masks (K, H, W), on the pixels that both the masks and the
+    renders' coverage (K, H, W) hold, and on those that either holds; with the share of person
+    pixels the renders miss and the share of the person mask's squared error on them."""
+    from monoavatar.eval import psnr
+
+    both = person & covered
+    either = person | covered
 
     def pooled(mask: np.ndarray) -> float | None:
         if not mask.any():
             return None
         full = np.broadcast_to(mask[..., None], pred.shape)
-        return psnr(pred, truth_images, mask=full)
+        return psnr(pred, truth, mask=full)
 
     missed = person & ~both
-    squared = ((pred.astype(np.float64) - truth_images.astype(np.float64)) ** 2).sum(axis=-1)
+    squared = ((pred.astype(np.float64) - truth.astype(np.float64)) ** 2).sum(axis=-1)
     total = float(squared[person].sum())
     return _HeldOut(
         mask_db=pooled(person),
         overlap_db=pooled(both),
         lighting=lighting,
+        union_db=pooled(either),
         missed_fraction=float(missed.sum() / person.sum()) if person.any() else None,
         missed_error_share=float(squared[missed].sum() / total) if total > 0 else None,
     )
@@ -624,13 +641,15 @@ def _heldout_psnr(
 
 @dataclass(frozen=True)
 class _HeldOut:
-    """What :func:`_heldout_psnr` measures: PSNR on the person mask and on the pixels covered
-    by both, the lighting used, the fraction of person pixels the render misses, and the
-    share of the squared error (on the person mask) that lies on those missed pixels."""
+    """What :func:`_heldout_psnr` measures: PSNR on the person mask, on the pixels covered
+    by both and on those covered by either, the lighting used, the fraction of person pixels
+    the render misses, and the share of the squared error (on the person mask) that lies on
+    those missed pixels."""
 
     mask_db: float | None
     overlap_db: float | None
     lighting: str
+    union_db: float | None = None
     missed_fraction: float | None = None
     missed_error_share: float | None = None
 
@@ -781,6 +800,7 @@ def evaluate_reconstruction(
             silhouette_iou_min=float(np.min(ious)),
             psnr_db=heldout.mask_db,
             psnr_overlap_db=heldout.overlap_db,
+            psnr_union_db=heldout.union_db,
             heldout_frames=int(len(held)) if heldout.mask_db is not None else 0,
             texture_lighting=heldout.lighting,
             keyframes=int(len(idx)),
