@@ -247,11 +247,15 @@ def _add_reconstruct(sub: argparse._SubParsersAction) -> None:
                    help="rounds of pose re-fitting with the consensus shape by keypoints and "
                    "silhouette, each followed by the shape again, before the texture (default "
                    "0: the flow rounds re-fit the poses with the shape)")
-    p.add_argument("--flow-rounds", type=int, default=2, metavar="R",
+    p.add_argument("--flow-rounds", type=int, default=3, metavar="R",
                    help="rounds of key-frame pose refinement by optical flow from the textured "
                    "avatar to each frame and by the outline, each followed by the shape and "
-                   "the texture again (default 2; about 0.2 s per key-frame and round for the "
-                   "flow, plus a shape and a texture; 0 turns it off)")
+                   "the texture again (default 3; about 0.15 s per key-frame and round for the "
+                   "flow on 2 cores, plus a shape and a texture; 0 turns it off)")
+    p.add_argument("--workers", type=int, default=2, metavar="N",
+                   help="threads that fit and texture key-frames side by side in the flow "
+                   "and texture stages (default 2; 1 makes runs bit-reproducible, 2 lets the "
+                   "result vary between runs by float rounding: about 0.03 mm of surface error)")
     p.add_argument("--model", default="anny",
                    help="body model: anny (default) or a path to your SMPL .npz/.pkl")  # fmt: skip
     p.set_defaults(run=_run_reconstruct)
@@ -264,7 +268,7 @@ def _run_reconstruct(args: argparse.Namespace) -> int:
         frames=args.frames, height=args.height, focal=args.focal, camera=args.camera,
         texture_size=args.texture_size, device=args.device, perception=args.perception,
         poses=args.poses, body_model=args.model, offsets=not args.no_offsets,
-        refine_rounds=args.refine_rounds, flow_rounds=args.flow_rounds,
+        refine_rounds=args.refine_rounds, flow_rounds=args.flow_rounds, workers=args.workers,
         perception_settings=_perception_settings(args), progress=not args.quiet,
     )  # fmt: skip
     try:

@@ -105,8 +105,17 @@ class ReconstructConfig:
             minimal-s19, clothed-tight-s24), 30 key-frames, shape ``contour_cos`` 0.3 (its
             default then; 0.15 took 2 rounds to 2.32 mm): surface error 2.90 → 2.62 → 2.55
             → 2.49 mm, held-out texture PSNR 22.12 → 22.47 → 22.80 → 23.05 dB, key-frame IoU
-            0.943 → 0.951 → 0.960 → 0.964 for 0 (with one refine round), 1, 2 and 3 rounds;
-            about 0.2 s per key-frame and round for the flow, plus a shape and a texture.
+            0.943 → 0.951 → 0.960 → 0.964 for 0 (with one refine round), 1, 2 and 3 rounds.
+            The whole suite, 2 → 3 rounds (``contour_cos`` 0.15): 2.75 → 2.64 mm (better on 8
+            of 9 subjects), 23.3 → 23.4 dB, IoU 0.962 → 0.966. A round costs about 0.15 s
+            per key-frame for the flow (2 workers, 2 cores), plus a shape and a texture: the
+            third took a 120-frame turn-around from about 115 to 135 s.
+        workers: threads that fit (flow rounds) and sample (texture) key-frames side by side;
+            the frames are independent there, so the result depends on the count only by
+            rounding (runs with 2 are not bit-identical; 1 is; about 0.03 mm of surface error
+            between runs, :func:`~monoavatar.fit.threads.frame_pool`). On 2
+            cores, 2 took a 120-frame turn-around's flow round from 26 to 18 s and a texture
+            from 9.1 to 6.2 s.
         perception_settings: options of mediapipe perception (:func:`perceive`), e.g. its
             GrabCut refinement of the mask boundary (``--no-grabcut`` turns it off).
         evaluate: for a synth folder, measure the surface error against its ground truth
@@ -125,7 +134,8 @@ class ReconstructConfig:
     body_model: str = "anny"
     offsets: bool = True
     refine_rounds: int = 0
-    flow_rounds: int = 2
+    flow_rounds: int = 3
+    workers: int = 2
     evaluate: bool = True
     progress: bool = True
     pose: PoseSettings = field(default_factory=PoseSettings)
@@ -141,6 +151,8 @@ class ReconstructConfig:
             raise ReconstructError(f"--refine-rounds must be >= 0, got {self.refine_rounds}")
         if self.flow_rounds < 0:
             raise ReconstructError(f"--flow-rounds must be >= 0, got {self.flow_rounds}")
+        if self.workers < 1:
+            raise ReconstructError(f"--workers must be at least 1, got {self.workers}")
         if self.height is not None and not 0.5 <= self.height <= 2.6:
             raise ReconstructError(
                 f"--height is in metres (0.5 to 2.6), got {self.height}; 175 cm is 1.75"
@@ -393,7 +405,8 @@ def run_texture(body: BodyModel, inputs: Inputs, track: PoseTrack, shape: Canoni
     images = inputs.frames.images[good]
     masks = inputs.observations.masks[good]
     sh = estimate_sh(posed[::4], body.faces, images[::4], masks[::4], track.camera)
-    settings = TextureSettings(**{**asdict(config.texture), "size": config.texture_size})
+    settings = TextureSettings(**{**asdict(config.texture), "size": config.texture_size,
+                                  "workers": config.workers})  # fmt: skip
     texture = build_texture(posed, body.faces, body.uv, body.face_uv, images, masks,
                             track.camera, sh, settings, progress=config.progress)  # fmt: skip
     return texture, sh
@@ -406,8 +419,8 @@ def run_flow_refine(body: BodyModel, inputs: Inputs, track: PoseTrack, shape: Ca
     ``texture`` to each frame (:func:`monoavatar.fit.flow_refine.refine_poses_with_flow`)."""
     return refine_poses_with_flow(
         body, inputs.observations, inputs.frames.images, track, shape.shape, shape.offsets,
-        texture.as_float(), sh if texture.albedo else None, config.flow, config.pose,
-        progress=config.progress,
+        texture.as_float(), sh if texture.albedo else None,
+        replace(config.flow, workers=config.workers), config.pose, progress=config.progress,
     )  # fmt: skip
 
 

@@ -53,7 +53,7 @@ from monoavatar.camera import PinholeCamera
 from monoavatar.fit import pose as posefit
 from monoavatar.fit.prior import apose_prior
 from monoavatar.fit.rays import contour_candidates, match_boundary, silhouette_boundary
-from monoavatar.fit.threads import torch_threads
+from monoavatar.fit.threads import frame_pool, torch_threads
 from monoavatar.perception.flow import DISFlow
 from monoavatar.perception.observations import Observations
 from monoavatar.render import Fragments, rasterize, vertex_normals
@@ -103,6 +103,9 @@ class FlowRefineSettings:
             and would push the outline out when pulled onto the edge).
         contour_max_distance: pixels; edge samples farther than this from every outline
             vertex get no match.
+        workers: threads that fit key-frames side by side (each frame's fit is independent
+            of the others', so the poses depend on the count only through rounding; see
+            :func:`monoavatar.fit.threads.frame_pool`).
     """
 
     points: int = 1500
@@ -119,9 +122,10 @@ class FlowRefineSettings:
     contour_samples: int = 1500
     contour_max_cos: float = 0.1
     contour_max_distance: float = 6.0
+    workers: int = 2
 
     def __post_init__(self) -> None:
-        for name in ("points", "iterations", "contour_samples"):
+        for name in ("points", "iterations", "contour_samples", "workers"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
         if self.rigid_iterations < 0:
@@ -289,21 +293,20 @@ def _refine(body: BodyModel, obs: Observations, images: np.ndarray, track: posef
     faces = body.faces.numpy()
     uv, face_uv = body.uv.double().numpy(), body.face_uv.numpy()
     tex = torch.as_tensor(np.asarray(texture, dtype=np.float64))
-    estimator = DISFlow(settings.preset)
 
     poses, trans = track.poses.copy(), track.translations.copy()
     energy = track.energy.copy()
     good = np.flatnonzero(~track.failed & ~obs.no_person)
-    # frame by frame, without the smoothness term: every frame is tied to the one texture
-    # (L-BFGS on one frame converges in far fewer iterations than on a window of them)
-    for i in tqdm(good, desc="flow refinement", unit="frame", disable=not progress):
+
+    def refine_frame(i: int) -> tuple[np.ndarray, np.ndarray, float]:
         pose_i = torch.as_tensor(poses[i : i + 1], dtype=dtype)
         trans_i = torch.as_tensor(trans[i : i + 1], dtype=dtype)
         with torch.no_grad():
             out = body(shape=beta, pose=pose_i, translation=trans_i, offsets=d)
         verts = out.vertices[0].double().numpy()
         frags = rasterize(verts, faces, camera)
-        flow = flow_to_frame(frags, verts, faces, uv, face_uv, tex, images[i], sh, estimator)
+        flow = flow_to_frame(frags, verts, faces, uv, face_uv, tex, images[i], sh,
+                             DISFlow(settings.preset))  # fmt: skip
         targets, valid = flow_correspondences(verts[point_ids], camera, frags, flow,
                                               obs.masks[i], settings)  # fmt: skip
         frames = replace(
@@ -321,7 +324,17 @@ def _refine(body: BodyModel, obs: Observations, images: np.ndarray, track: posef
         p_out, t_out, e_out = posefit._fit_window(
             ctx, sub_i, frames, poses[i : i + 1], trans[i : i + 1], None, settings.iterations
         )
-        poses[i], trans[i], energy[i] = p_out[0], t_out[0], e_out[0]
+        return p_out[0], t_out[0], float(e_out[0])
+
+    # frame by frame, without the smoothness term: every frame is tied to the one texture
+    # (L-BFGS on one frame converges in far fewer iterations than on a window of them); the
+    # frames are independent, so ``workers`` threads fit them side by side
+    with frame_pool(settings.workers) as pool:
+        fitted = tqdm(pool.map(refine_frame, good), total=len(good), desc="flow refinement",
+                      unit="frame", disable=not progress)  # fmt: skip
+        results = list(fitted)
+    for i, (p_i, t_i, e_i) in zip(good, results, strict=True):
+        poses[i], trans[i], energy[i] = p_i, t_i, e_i
     seconds = time.perf_counter() - start
     return replace(track, poses=poses, translations=trans, energy=energy,
                    seconds=track.seconds + seconds,

@@ -44,6 +44,7 @@ from torch import Tensor
 from tqdm import tqdm
 
 from monoavatar.camera import PinholeCamera
+from monoavatar.fit.threads import frame_pool
 from monoavatar.perception.flow import DISFlow
 from monoavatar.render import Fragments, rasterize, render_textured, sh_shading, vertex_normals
 from monoavatar.texture.atlas import (
@@ -94,6 +95,10 @@ class TextureSettings:
             sampled again there. 0 samples each view where the fitted pose projects it.
         max_flow: pixels; registration flow longer than this is not trusted (the sample keeps
             its projected position).
+        workers: threads that sample frames side by side (rasterising, registration flow and
+            sampling; the samples are added to the median in frame order, so the texture
+            depends on the count only through rounding, see
+            :func:`monoavatar.fit.threads.frame_pool`).
     """
 
     size: int = 1024
@@ -110,6 +115,7 @@ class TextureSettings:
     dilation: int = 8
     register_rounds: int = 1
     max_flow: float = 8.0
+    workers: int = 2
 
     def __post_init__(self) -> None:
         if self.size < 2:
@@ -130,6 +136,8 @@ class TextureSettings:
         for name in ("mask_margin", "edge_margin", "dilation", "register_rounds"):
             if getattr(self, name) < 0:
                 raise TextureError(f"{name} must be >= 0, got {getattr(self, name)}")
+        if self.workers < 1:
+            raise TextureError(f"workers must be at least 1, got {self.workers}")
 
 
 @dataclass(frozen=True)
@@ -506,22 +514,28 @@ def build_texture(
     corners = f[atlas.face].astype(np.int32)
     graph = None
     image = np.zeros((work, work, 3), np.float32)  # the texture so far; round 0 fills it
-    flow_estimator = DISFlow("medium")
     for r in range(settings.register_rounds + 1):
         top = _TopK(atlas.num_texels, settings.top_k)
         so_far = torch.as_tensor(image, dtype=torch.float64)  # rendered in this round's flows
         label = "texture" if r == 0 else f"texture: registration {r}"
-        for i in tqdm(range(n_frames), desc=label, unit="frame", disable=not progress):
+
+        def frame_views(i: int, register: bool = r > 0,
+                        so_far: Tensor = so_far) -> _Views:  # fmt: skip
             sh_i = None if lighting is None else lighting[i]
             frags = rasterize(verts[i], f, cams[i])
             flow = None
-            if r > 0:  # step 6: where the texture so far lies in this frame
+            if register:  # step 6: where the texture so far lies in this frame
                 flow = flow_to_frame(frags, verts[i], f, t, fu, so_far, imgs[i], sh_i,
-                                     flow_estimator)  # fmt: skip
+                                     DISFlow("medium"))  # fmt: skip
                 flow[np.linalg.norm(flow, axis=2) > settings.max_flow] = 0.0
-            views = _view_samples(atlas, corners, f, verts[i], imgs[i], msks[i], cams[i], sh_i,
-                                  settings, flow, frags)  # fmt: skip
-            top.add(views)
+            return _view_samples(atlas, corners, f, verts[i], imgs[i], msks[i], cams[i], sh_i,
+                                 settings, flow, frags)  # fmt: skip
+
+        # the frames are sampled side by side (``workers`` threads) and added in frame order
+        with frame_pool(settings.workers) as pool:
+            for views in tqdm(pool.map(frame_views, range(n_frames)), total=n_frames,
+                              desc=label, unit="frame", disable=not progress):  # fmt: skip
+                top.add(views)
         colour, count = top.median()
         seen = count > 0
         if settings.fill and seen.any() and not seen.all():
