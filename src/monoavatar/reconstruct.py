@@ -108,8 +108,9 @@ class ReconstructConfig:
             0.943 → 0.951 → 0.960 → 0.964 for 0 (with one refine round), 1, 2 and 3 rounds.
             The whole suite, 2 → 3 rounds (``contour_cos`` 0.15): 2.75 → 2.64 mm (better on 8
             of 9 subjects), 23.3 → 23.4 dB, IoU 0.962 → 0.966. A round costs about 0.15 s
-            per key-frame for the flow (2 workers, 2 cores), plus a shape and a texture: the
-            third took a 120-frame turn-around from about 115 to 135 s.
+            per key-frame for the flow (2 workers, 2 cores), plus a shape and a texture: a
+            120-frame turn-around took 127 s with three rounds and 2 workers (123 s with two
+            rounds and one).
         workers: threads that fit (flow rounds) and sample (texture) key-frames side by side;
             the frames are independent there, so the result depends on the count only by
             rounding (runs with 2 are not bit-identical; 1 is; about 0.03 mm of surface error
