@@ -39,10 +39,14 @@ def frame_pool(workers: int) -> Iterator[ThreadPoolExecutor]:
     PyTorch's count itself, as OpenMP keeps it per thread.
 
     Results are not bit-identical between runs: on a 120-frame turn-around, the flow rounds'
-    poses of two or three frames differed between runs of the same input, starting at float32
-    rounding (6e-8 rad) and reaching 9e-5 rad through the fit; one thread per library does not
-    remove it and one worker does. Over a whole reconstruction that moved the surface error
-    by 0.03 mm.
+    poses of two to four frames differed between runs of the same input, starting at float32
+    rounding (6e-8 rad) and reaching 9e-5 rad through the fit; over a whole reconstruction
+    that moved the surface error by 0.03 mm. It is not a race (serialising every stage of a
+    frame's work behind one lock left it): the float32 sums depend on where in memory their
+    arrays lie (vectorised loops split them by alignment), and two threads allocate in a
+    varying order. With one worker the allocations repeat exactly and runs are
+    bit-identical; random allocations between frames, with one worker, moved the same frames
+    by the same amounts.
     """
     if workers < 1:
         raise ValueError(f"workers must be at least 1, got {workers}")
