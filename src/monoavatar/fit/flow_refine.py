@@ -63,6 +63,7 @@ __all__ = [
     "FlowRefineSettings",
     "contour_correspondences",
     "flow_correspondences",
+    "inside_distance",
     "refine_poses_with_flow",
 ]
 
@@ -149,6 +150,7 @@ def flow_correspondences(
     flow: np.ndarray,
     mask: np.ndarray,
     settings: FlowRefineSettings,
+    inside_px: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """2D targets of model points from a render→frame flow.
 
@@ -159,6 +161,7 @@ def flow_correspondences(
         flow: (H, W, 2) flow from the render to the frame, pixels.
         mask: (H, W) bool observed person mask: a target must lie on the person.
         settings: ``max_flow``, ``depth_tolerance`` and ``edge_margin``.
+        inside_px: :func:`inside_distance` of ``frags``, when the caller has it already.
     Returns:
         targets (N, 2) pixels (projection + flow at it) and valid (N,) bool: visible, inside
         the image, at least ``edge_margin`` px inside the render's outline, flow shorter than
@@ -174,8 +177,8 @@ def flow_correspondences(
     visible = inside & covered[row, col]
     visible &= np.abs(z - frags.depth.numpy()[row, col]) < settings.depth_tolerance
     if settings.edge_margin > 0:
-        inside_px = cv2.distanceTransform(covered.astype(np.uint8), cv2.DIST_L2,
-                                          cv2.DIST_MASK_PRECISE)  # fmt: skip
+        if inside_px is None:
+            inside_px = inside_distance(frags)
         visible &= inside_px[row, col] >= settings.edge_margin
     f = flow[row, col].astype(np.float64)
     targets = px + f
@@ -185,6 +188,13 @@ def flow_correspondences(
     return targets, valid
 
 
+def inside_distance(frags: Fragments) -> np.ndarray:
+    """(H, W) float32: each covered pixel's distance in pixels to the nearest pixel the
+    render does not cover (0 off the render)."""
+    covered = (frags.face_id.numpy() >= 0).astype(np.uint8)
+    return cv2.distanceTransform(covered, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+
+
 def contour_correspondences(
     vertices: np.ndarray,
     faces: np.ndarray,
@@ -192,6 +202,7 @@ def contour_correspondences(
     frags: Fragments,
     mask: np.ndarray,
     settings: FlowRefineSettings,
+    inside_px: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Vertices on a posed mesh's visible outline matched to the observed mask's edge.
 
@@ -207,6 +218,7 @@ def contour_correspondences(
         camera: the camera; frags: the rasterisation of the posed mesh.
         mask: (H, W) bool observed person mask.
         settings: the ``contour_*`` options.
+        inside_px: :func:`inside_distance` of ``frags``, when the caller has it already.
     Returns:
         vertex ids (M,), their targets on the edge (M, 2) pixels, and the edge's unit outward
         normals there (M, 2).
@@ -217,8 +229,8 @@ def contour_correspondences(
                                                  settings.contour_max_cos)  # fmt: skip
     if len(ids) == 0:
         return empty
-    covered = (frags.face_id.numpy() >= 0).astype(np.uint8)
-    inside_px = cv2.distanceTransform(covered, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    if inside_px is None:
+        inside_px = inside_distance(frags)
     h, w = mask.shape
     col = np.clip(np.floor(pixels[:, 0]).astype(int), 0, w - 1)
     row = np.clip(np.floor(pixels[:, 1]).astype(int), 0, h - 1)
@@ -307,8 +319,9 @@ def _refine(body: BodyModel, obs: Observations, images: np.ndarray, track: posef
         frags = rasterize(verts, faces, camera)
         flow = flow_to_frame(frags, verts, faces, uv, face_uv, tex, images[i], sh,
                              DISFlow(settings.preset))  # fmt: skip
+        inside_px = inside_distance(frags)  # for both the flow's margin and the outline
         targets, valid = flow_correspondences(verts[point_ids], camera, frags, flow,
-                                              obs.masks[i], settings)  # fmt: skip
+                                              obs.masks[i], settings, inside_px)  # fmt: skip
         frames = replace(
             posefit._frames(obs, np.array([i]), pose_settings, dtype),
             flow=posefit.Correspondences(torch.as_tensor(targets[None], dtype=dtype),
@@ -319,7 +332,8 @@ def _refine(body: BodyModel, obs: Observations, images: np.ndarray, track: posef
         if settings.contour_weight > 0:
             sub_i, frames = _with_contour(sub, body, rest[0], d, point_ids, frames,
                                           contour_correspondences(verts, faces, camera, frags,
-                                                                  obs.masks[i], settings),
+                                                                  obs.masks[i], settings,
+                                                                  inside_px),
                                           settings)  # fmt: skip
         p_out, t_out, e_out = posefit._fit_window(
             ctx, sub_i, frames, poses[i : i + 1], trans[i : i + 1], None, settings.iterations

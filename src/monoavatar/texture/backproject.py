@@ -37,6 +37,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 import torch
@@ -514,27 +515,28 @@ def build_texture(
     corners = f[atlas.face].astype(np.int32)
     graph = None
     image = np.zeros((work, work, 3), np.float32)  # the texture so far; round 0 fills it
+
+    def frame_views(i: int, so_far: Tensor | None) -> _Views:
+        """Frame i's samples; registered by the flow from ``so_far`` rendered (step 6)."""
+        sh_i = None if lighting is None else lighting[i]
+        frags = rasterize(verts[i], f, cams[i])
+        flow = None
+        if so_far is not None:  # step 6: where the texture so far lies in this frame
+            flow = flow_to_frame(frags, verts[i], f, t, fu, so_far, imgs[i], sh_i,
+                                 DISFlow("medium"))  # fmt: skip
+            flow[np.linalg.norm(flow, axis=2) > settings.max_flow] = 0.0
+        return _view_samples(atlas, corners, f, verts[i], imgs[i], msks[i], cams[i], sh_i,
+                             settings, flow, frags)  # fmt: skip
+
     for r in range(settings.register_rounds + 1):
         top = _TopK(atlas.num_texels, settings.top_k)
-        so_far = torch.as_tensor(image, dtype=torch.float64)  # rendered in this round's flows
+        so_far = None if r == 0 else torch.as_tensor(image, dtype=torch.float64)
         label = "texture" if r == 0 else f"texture: registration {r}"
-
-        def frame_views(i: int, register: bool = r > 0,
-                        so_far: Tensor = so_far) -> _Views:  # fmt: skip
-            sh_i = None if lighting is None else lighting[i]
-            frags = rasterize(verts[i], f, cams[i])
-            flow = None
-            if register:  # step 6: where the texture so far lies in this frame
-                flow = flow_to_frame(frags, verts[i], f, t, fu, so_far, imgs[i], sh_i,
-                                     DISFlow("medium"))  # fmt: skip
-                flow[np.linalg.norm(flow, axis=2) > settings.max_flow] = 0.0
-            return _view_samples(atlas, corners, f, verts[i], imgs[i], msks[i], cams[i], sh_i,
-                                 settings, flow, frags)  # fmt: skip
-
         # the frames are sampled side by side (``workers`` threads) and added in frame order
         with frame_pool(settings.workers) as pool:
-            for views in tqdm(pool.map(frame_views, range(n_frames)), total=n_frames,
-                              desc=label, unit="frame", disable=not progress):  # fmt: skip
+            views_of = pool.map(partial(frame_views, so_far=so_far), range(n_frames))
+            for views in tqdm(views_of, total=n_frames, desc=label, unit="frame",
+                              disable=not progress):  # fmt: skip
                 top.add(views)
         colour, count = top.median()
         seen = count > 0
