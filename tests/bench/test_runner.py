@@ -17,7 +17,8 @@ def test_run_bench_with_fake_reconstruction(tiny_scene, anny32, anny_local, tmp_
     monkeypatch.setattr(runner, "get_suite", lambda quick=False: tiny)
     fake = FakeReconstruct(anny32, anny_local, avatar="fine", fail_modes=("ground-truth",))
     out = tmp_path / "bench"
-    results = runner.run_bench(out, reconstruct=fake, scenes_dir=scenes, progress=True)
+    results = runner.run_bench(out, reconstruct=fake, scenes_dir=scenes, progress=True,
+                               track_rounds=0)
 
     # every mode was asked for, with the subject's key-frames and a private cache
     assert len(fake.calls) == 3
@@ -49,6 +50,10 @@ def test_run_bench_with_fake_reconstruction(tiny_scene, anny32, anny_local, tmp_
     assert m.heldout_frames == subject.frames - subject.keyframes
     assert m.psnr_db is not None and m.psnr_db > 18.0
     assert m.psnr_overlap_db is not None and m.psnr_overlap_db >= m.psnr_db
+    # no flow rounds: the tracked poses are the interpolated ones; the true poses transferred
+    # onto the fake's skeleton (Anny without local changes) read lower
+    assert m.psnr_interpolated_db == pytest.approx(m.psnr_db)
+    assert m.psnr_true_poses_db is not None and m.psnr_true_poses_db > 18.0
     # missed person pixels: the two PSNRs' MSE ratio is (1 - error share) / (1 - pixel share)
     frac, share = m.missed_fraction, m.missed_error_share
     assert frac is not None and share is not None and 0.0 < frac < 0.2 and frac < share < 1.0
@@ -92,7 +97,7 @@ def test_measure_only_remeasures_earlier_runs_without_reconstructing(tiny_scene,
     out = tmp_path / "bench"
     fake = FakeReconstruct(anny32, anny_local, avatar="coarse")
     first = runner.run_bench(out, reconstruct=fake, scenes_dir=scenes, progress=False,
-                             gt_poses=False)  # fmt: skip
+                             gt_poses=False, track_rounds=0)  # fmt: skip
 
     def never(*args):
         raise AssertionError("reconstruct must not run")
@@ -102,7 +107,7 @@ def test_measure_only_remeasures_earlier_runs_without_reconstructing(tiny_scene,
 
     shutil.rmtree(out / "runs" / subject.name / "shape-only")
     again = runner.run_bench(out, reconstruct=never, scenes_dir=scenes, progress=False,
-                             gt_poses=False, measure_only=True)  # fmt: skip
+                             gt_poses=False, measure_only=True, track_rounds=0)  # fmt: skip
     a, b = first.run(subject.name, "estimated"), again.run(subject.name, "estimated")
     assert a is not None and b is not None and b.status == "ok" and b.metrics is not None
     assert a.metrics is not None

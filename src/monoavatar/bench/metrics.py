@@ -31,9 +31,29 @@ reconstruction; this module only reads files, poses body models and renders.
 * **Silhouette IoU**: the posed avatar (shape + offsets, the reconstruction's own poses,
   translations and camera) rasterised at each key-frame against the exact ground-truth mask;
   mean and minimum over key-frames.
-* **Texture PSNR in held-out poses**: on frames that are not key-frames, the avatar is posed
-  on its own skeleton with the ground-truth joint rotations of the frame, applied on top of
-  the canonical pose that the surface alignment found (a canonical pose a few degrees off the
+* **Texture PSNR in held-out poses**: on frames that are not key-frames, the avatar (shape,
+  offsets, texture and lighting as reconstructed, never changed) is posed by our own tracker,
+  :func:`monoavatar.fit.track.track_frames`: the key-frames' poses interpolated in time, then
+  refined by the flow rounds on the held-out frame (optical flow from the avatar's render to
+  the frame, the outline, and the pose energy on the frame's perception: mediapipe's in the
+  estimated modes, the scene's own in the ground-truth-pose mode). Only the poses are fitted
+  to the held-out frames (evaluations of avatars from monocular video often refine the test
+  frames' poses with the avatar fixed, since estimated test poses are themselves a few degrees
+  off); the held-out frames never reach the avatar. The
+  avatar is rendered with the reconstruction's camera over a mid-grey background, textured and
+  lit as the reconstruction says (see :attr:`SubjectMetrics.texture_lighting`), and compared
+  with the ground-truth frame (8-bit, the frame's own noise included) on the pixels of the
+  ground-truth person mask (``psnr_db``: missed person pixels count against grey), on the
+  pixels covered by both (``psnr_overlap_db``: texture only), and on the pixels covered by
+  either (``psnr_union_db``: missed person pixels count against grey and spilled avatar pixels
+  against the frame's background, so an outline that is too wide costs as much as one that is
+  too narrow; on the person mask alone, spill is free). Two other placements are kept for
+  comparison, on the person mask: ``psnr_interpolated_db``, the interpolated poses alone (no
+  held-out image used), and ``psnr_true_poses_db``, the ground-truth joint rotations of the
+  frame transferred onto the avatar's skeleton (below).
+* **The same with the true poses transferred** (``psnr_true_poses_db``): the avatar posed on
+  its own skeleton with the ground-truth joint rotations of the frame, applied on top of the
+  canonical pose that the surface alignment found (a canonical pose a few degrees off the
   truth's is pose error, which PA-MPJPE measures; ``psnr_rigid_db`` keeps the figure without
   it), and placed by the surface alignment: scaled and turned by its similarity transform,
   with its root joint where that transform puts it in the ground truth's canonical frame,
@@ -41,14 +61,12 @@ reconstruction; this module only reads files, poses body models and renders.
   joint centre lies inside the body is not visible and differs between body models; placing
   the root joint *onto* the true root joint instead shifted a whole avatar by its canonical
   root offset, about 1 cm, and cost 2.7 dB (estimated poses) to 4.8 dB (true poses) on the
-  suite's means.) The avatar is rendered with the scene camera over a mid-grey background,
-  textured and lit as the reconstruction says (see :attr:`SubjectMetrics.texture_lighting`),
-  and compared with the ground-truth frame (8-bit, the frame's own noise included) on the
-  pixels of the ground-truth person mask (``psnr_db``: missed person pixels count against
-  grey), on the pixels covered by both (``psnr_overlap_db``: texture only), and on the
-  pixels covered by either (``psnr_union_db``: missed person pixels count against grey and
-  spilled avatar pixels against the frame's background, so an outline that is too wide costs
-  as much as one that is too narrow; on the person mask alone, spill is free).
+  suite's means.) It is rendered with the scene camera, and reads lower than the tracked
+  figure: the same rotations on two skeletons whose joints sit differently inside the body,
+  and a surface aligned by closest points (which lets it slide along itself), put the texture
+  a pixel or two off where the frame has it (the 2026-12-01 suite: 23.4 dB transferred, 25.6
+  tracked; at the key-frames, with the avatar's own poses, clothed-tight-s24 reads 24.4 dB,
+  transferred 21.5 dB).
 """
 
 from __future__ import annotations
@@ -68,12 +86,14 @@ from monoavatar.eval.surface import ICP_POINTS
 if TYPE_CHECKING:
     from monoavatar.body import BodyModel
     from monoavatar.camera import PinholeCamera
+    from monoavatar.fit.pose import PoseTrack
     from monoavatar.io.synth_scene import SynthScene
 
 __all__ = [
     "BACKGROUND_GREY",
     "ICP_POINTS",
     "BodyCache",
+    "HELDOUT_TRACK_ROUNDS",
     "HeatMap",
     "MetricsError",
     "ROOT_OFF_DEG",
@@ -355,13 +375,14 @@ class SubjectMetrics:
         pa_mpjpe_mm: PA-MPJPE of the fitted joints at the key-frames, mm.
         silhouette_iou: mean IoU of the posed avatar and the ground-truth masks at the
             key-frames; ``silhouette_iou_min`` the worst key-frame.
-        psnr_db: texture PSNR in held-out poses on the ground-truth mask, dB (None without
-            held-out frames or texture); ``psnr_overlap_db`` on pixels covered by both;
-            ``psnr_union_db`` on pixels covered by either (spill counted too).
+        psnr_db: texture PSNR in held-out poses (tracked) on the ground-truth mask, dB (None
+            without held-out frames or texture); ``psnr_overlap_db`` on pixels covered by
+            both; ``psnr_union_db`` on pixels covered by either (spill counted too).
         heldout_frames: how many held-out frames the PSNR averages (MSE pooled over them).
         texture_lighting: how the held-out renders were lit: ``"estimated"`` (an albedo
             texture shaded by the reconstruction's own SH estimate ``lighting_sh`` in
-            ``params.npz``, rotated into the scene's world if the cameras differ),
+            ``params.npz``, in the reconstruction's world for the tracked renders and rotated
+            into the scene's world, if the cameras differ, for the transferred ones),
             ``"ground-truth"`` (an albedo texture without an estimate: the frame's true SH;
             albedo and lighting share an unknown scale, so this can be off in brightness),
             ``"unlit"`` (a texture with the shading baked in).
@@ -370,8 +391,13 @@ class SubjectMetrics:
         reconstruct_seconds: the reconstruction's total seconds from ``report.json``.
         peak_memory_mb: peak memory from ``report.json``.
         warnings: warnings from ``report.json``.
-        psnr_rigid_db: ``psnr_db`` with the avatar in its own canonical pose (only the
-            similarity transform of the surface alignment), for comparison.
+        psnr_true_poses_db: on the person mask, with the true poses transferred (module
+            docstring) instead of tracked; ``psnr_rigid_db`` the same with the avatar in its
+            own canonical pose (only the similarity transform of the surface alignment).
+        psnr_interpolated_db: on the person mask, with the key-frames' poses interpolated to
+            the held-out frames, before the tracker's flow rounds.
+        heldout_track_seconds: the tracker's seconds for the held-out frames (perception
+            included).
         missed_fraction: in the held-out renders, the fraction of ground-truth person pixels
             the avatar does not cover (they count against grey in ``psnr_db``).
         missed_error_share: the share of ``psnr_db``'s squared error that lies on them.
@@ -402,6 +428,9 @@ class SubjectMetrics:
     root_error_max_deg: float | None = None
     root_off_frames: int | None = None
     psnr_union_db: float | None = None
+    psnr_true_poses_db: float | None = None
+    psnr_interpolated_db: float | None = None
+    heldout_track_seconds: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready values (non-finite numbers become None)."""
@@ -429,7 +458,10 @@ class SubjectMetrics:
             "texture_psnr_db": self.psnr_db,
             "texture_psnr_overlap_db": self.psnr_overlap_db,
             "texture_psnr_union_db": self.psnr_union_db,
+            "texture_psnr_true_poses_db": self.psnr_true_poses_db,
             "texture_psnr_rigid_db": self.psnr_rigid_db,
+            "texture_psnr_interpolated_db": self.psnr_interpolated_db,
+            "heldout_track_seconds": self.heldout_track_seconds,
             "texture_missed_fraction": self.missed_fraction,
             "texture_missed_error_share": self.missed_error_share,
             "root_error_deg": self.root_error_deg,
@@ -566,10 +598,6 @@ def _heldout_psnr(
     avatar's canonical frame onto the ground truth's (the surface error's transform); with
     ``aligned_pose`` (J, 3), the avatar's canonical pose is first taken to the truth's by
     those joint rotations and ``alignment`` is the transform that follows them."""
-    import torch
-
-    from monoavatar.render import rasterize, render_textured
-
     if recon.texture is None or len(frames) == 0:
         return _HeldOut(None, None, "unlit")
     scene = truth.scene
@@ -580,7 +608,6 @@ def _heldout_psnr(
         lighting, sh = "estimated", np.repeat(own[None], len(truth.sh), axis=0)
     else:
         lighting, sh = "ground-truth", truth.sh
-    texture = torch.as_tensor(recon.texture.astype(np.float64) / 255.0)
     gt = scene.ground_truth
     poses = gt.poses[frames]
     if aligned_pose is not None:
@@ -590,23 +617,107 @@ def _heldout_psnr(
     _, rest_joints = _pose(body, recon.shape, np.zeros((1, body.num_joints, 3)), np.zeros((1, 3)),
                            recon.offsets)  # fmt: skip
     root_in_truth = alignment.apply(rest_joints[0, :1])[0]  # joint 0: the root
-    renders, covered = [], []
+    placed = []
     for k, f in enumerate(frames):
         g = truth.root_transforms[f]
         # the alignment's rotation, conjugated by the root's rotation (both models turn the
         # root by the same axis-angle), then the root carried into the world by the truth's
         turn = g[:3, :3] @ alignment.rotation @ g[:3, :3].T
         relative = (verts[k] - joints[k, 0]) @ turn.T
-        v = alignment.scale * relative + g[:3, :3] @ root_in_truth + g[:3, 3]
-        frags = rasterize(v, body.faces, scene.camera)
-        image = render_textured(v, body.faces, frags, body.uv, body.face_uv, texture,
-                                sh=None if sh is None else sh[f],
+        placed.append(alignment.scale * relative + g[:3, :3] @ root_in_truth + g[:3, 3])
+    pred, covered = _render_heldout(body, np.stack(placed), scene.camera, recon.texture,
+                                    None if sh is None else sh[frames])  # fmt: skip
+    return _held_out_figures(pred, scene.frames.images[frames], gt.masks[frames], covered,
+                             lighting)  # fmt: skip
+
+
+def _render_heldout(body: BodyModel, vertices: np.ndarray, camera: PinholeCamera,
+                    texture: np.ndarray, sh: np.ndarray | None,
+                    ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Renders (K, H, W, 3) uint8 of posed avatars (K, V, 3) (the camera's world, metres) with
+    a (T, T, 3) uint8 texture, lit by (K, 3, 9) SH (None: unlit) over the grey background,
+    and their coverage (K, H, W)."""
+    import torch
+
+    from monoavatar.render import rasterize, render_textured
+
+    tex = torch.as_tensor(texture.astype(np.float64) / 255.0)
+    renders, covered = [], []
+    for k, v in enumerate(vertices):
+        frags = rasterize(v, body.faces, camera)
+        image = render_textured(v, body.faces, frags, body.uv, body.face_uv, tex,
+                                sh=None if sh is None else sh[k],
                                 background=BACKGROUND_GREY)  # fmt: skip
         renders.append((np.clip(image.numpy(), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8))
         covered.append((frags.face_id >= 0).numpy())
-    pred = np.stack(renders)  # (K, H, W, 3): the MSE is pooled over all K frames
-    return _held_out_figures(pred, scene.frames.images[frames], gt.masks[frames],
-                             np.stack(covered), lighting)  # fmt: skip
+    return np.stack(renders), np.stack(covered)
+
+
+HELDOUT_TRACK_ROUNDS = 3
+"""Flow rounds of the tracker on the held-out frames (as ``reconstruct --flow-rounds``)."""
+
+
+def _key_track(recon: Reconstruction) -> PoseTrack:
+    """The reconstruction's key-frame poses as a track (flagged frames from ``report.json``)."""
+    from monoavatar.fit.pose import PoseTrack
+
+    k = len(recon.frame_indices)
+    failed = np.asarray((recon.report.get("fit") or {}).get("failed") or np.zeros(k), bool)
+    if failed.shape != (k,):
+        failed = np.zeros(k, bool)
+    nan = np.full(k, np.nan)
+    return PoseTrack(
+        body_model=recon.body_model, shape=recon.shape, poses=recon.poses,
+        translations=recon.translations, camera=recon.camera, frame_indices=recon.frame_indices,
+        keypoint_error=nan, silhouette_iou=nan, energy=nan, failed=failed,
+        height=float("nan"), scale_known=False, seconds=0.0,
+    )  # fmt: skip
+
+
+def _tracked_psnr(recon: Reconstruction, body: BodyModel, truth: SubjectTruth,
+                  frames: np.ndarray, perception: str, rounds: int,
+                  ) -> tuple[_HeldOut, _HeldOut, float]:  # fmt: skip
+    """Held-out figures with the avatar tracked into the frames
+    (:func:`monoavatar.fit.track.track_frames`, ``rounds`` flow rounds; perception
+    ``"mediapipe"`` or ``"ground-truth"``: the scene's own), and with the interpolated poses
+    before the flow rounds; the tracker's seconds. (Lit by the true light, an albedo without
+    an estimate is tracked with the first held-out frame's light.)"""
+    import time
+    from dataclasses import replace
+
+    from monoavatar.fit.track import track_frames
+    from monoavatar.io.synth_scene import read_synth_scene
+    from monoavatar.perception import perceive
+
+    start = time.perf_counter()
+    if recon.texture is None or len(frames) == 0:
+        return _HeldOut(None, None, "unlit"), _HeldOut(None, None, "unlit"), 0.0
+    held = read_synth_scene(truth.scene.folder, frames=frames)
+    if perception == "ground-truth":
+        obs = held.observations
+    elif perception == "mediapipe":
+        obs = perceive(held.frames, recon.camera, use_cache=False)
+    else:
+        raise ValueError(f"perception must be 'mediapipe' or 'ground-truth', got {perception!r}")
+    obs = replace(obs, camera=recon.camera)
+    if not recon.texture_is_albedo:
+        lighting, sh = "unlit", None
+    elif recon.lighting_sh is not None:
+        lighting, sh = "estimated", np.repeat(recon.lighting_sh[None], len(frames), axis=0)
+    else:
+        lighting = "ground-truth"
+        sh = np.stack([_sh_to_world(truth.sh[f], truth.scene.camera.R, recon.camera.R)
+                       for f in frames])  # fmt: skip
+    texture = recon.texture.astype(np.float64) / 255.0
+    figures = []
+    for n in (0, rounds):
+        track = track_frames(body, obs, held.frames.images, _key_track(recon), recon.shape,
+                             recon.offsets, texture, None if sh is None else sh[0], n)  # fmt: skip
+        verts, _ = _pose(body, recon.shape, track.poses, track.translations, recon.offsets)
+        pred, covered = _render_heldout(body, verts, recon.camera, recon.texture, sh)
+        figures.append(_held_out_figures(pred, held.frames.images, held.ground_truth.masks,
+                                         covered, lighting))  # fmt: skip
+    return figures[0], figures[1], time.perf_counter() - start
 
 
 def _held_out_figures(pred: np.ndarray, truth: np.ndarray, person: np.ndarray,
@@ -721,6 +832,8 @@ def evaluate_reconstruction(
     *,
     max_heldout: int = 20,
     body_only: bool = True,
+    perception: str = "mediapipe",
+    track_rounds: int = HELDOUT_TRACK_ROUNDS,
 ) -> tuple[SubjectMetrics, HeatMap]:
     """Measure a reconstruction output folder against the synth scene it was made from.
 
@@ -730,6 +843,10 @@ def evaluate_reconstruction(
         bodies: body models to reuse between calls.
         max_heldout: at most this many held-out frames (evenly spread) for the PSNR.
         body_only: also measure the fitted body without its offsets.
+        perception: what the held-out tracker sees of the held-out frames: ``"mediapipe"``
+            (masks and keypoints perceived from the frames) or ``"ground-truth"`` (the
+            scene's own, as ``reconstruct --perception ground-truth``).
+        track_rounds: the tracker's flow rounds (0: the interpolated poses).
 
     Returns:
         The metrics, and the per-vertex error of the aligned avatar for heat maps.
@@ -781,11 +898,13 @@ def evaluate_reconstruction(
                                           truth.scene.camera.R)  # fmt: skip
 
     held = heldout_frames(n, idx, max_heldout)
-    heldout = _heldout_psnr(recon, body, truth, surface.alignment, held)
-    psnr_rigid = heldout.mask_db
+    transferred = _heldout_psnr(recon, body, truth, surface.alignment, held)
+    psnr_rigid = transferred.mask_db
     if surface.pose_alignment is not None:
-        heldout = _heldout_psnr(recon, body, truth, surface.pose_alignment, held,
-                                surface.aligned_pose)  # fmt: skip
+        transferred = _heldout_psnr(recon, body, truth, surface.pose_alignment, held,
+                                    surface.aligned_pose)  # fmt: skip
+    interpolated, heldout, track_seconds = _tracked_psnr(recon, body, truth, held, perception,
+                                                         track_rounds)  # fmt: skip
 
     report = recon.report
     shape_only = report.get("shape_only_error_mm")
@@ -814,6 +933,9 @@ def evaluate_reconstruction(
             root_error_deg=float(np.median(root_deg)),
             root_error_max_deg=float(root_deg.max()),
             root_off_frames=int((root_deg > ROOT_OFF_DEG).sum()),
+            psnr_true_poses_db=transferred.mask_db,
+            psnr_interpolated_db=interpolated.mask_db,
+            heldout_track_seconds=track_seconds if heldout.mask_db is not None else None,
         ),
         heat,
     )

@@ -31,7 +31,12 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from monoavatar.bench.metrics import BodyCache, evaluate_reconstruction, load_truth
+from monoavatar.bench.metrics import (
+    HELDOUT_TRACK_ROUNDS,
+    BodyCache,
+    evaluate_reconstruction,
+    load_truth,
+)
 from monoavatar.bench.report import (
     BenchResults,
     RunResult,
@@ -130,6 +135,7 @@ def run_bench(
     progress: bool = True,
     scenes_dir: str | Path | None = None,
     measure_only: bool = False,
+    track_rounds: int = HELDOUT_TRACK_ROUNDS,
 ) -> BenchResults:
     """Run the benchmark and write ``results.json``, ``results.md`` and heat maps.
 
@@ -148,6 +154,8 @@ def run_bench(
         measure_only: reconstruct nothing; measure the run folders an earlier benchmark left
             in ``out_dir/runs`` again (after a change of the metrics). Times and memory are
             then the reconstructions' own (``report.json``); a missing folder is a failed run.
+        track_rounds: flow rounds of the tracker that poses the avatar in the held-out frames
+            for the texture PSNR (0: the key-frames' poses interpolated).
 
     Returns:
         :class:`~monoavatar.bench.report.BenchResults`; ``.table`` is the Markdown that
@@ -204,7 +212,9 @@ def run_bench(
                 run.peak_rss_mb = _peak_rss_mb() if measured_peak else None
             try:
                 metrics, heat = evaluate_reconstruction(folder, truth, bodies,
-                                                        max_heldout=MAX_HELDOUT)  # fmt: skip
+                                                        max_heldout=MAX_HELDOUT,
+                                                        perception=mode.perception,
+                                                        track_rounds=track_rounds)  # fmt: skip
             except Exception as exc:  # noqa: BLE001 - recorded, the benchmark goes on
                 run.error = "evaluation: " + _short_error(exc)
                 _say(progress, f"  failed: {run.error}")
