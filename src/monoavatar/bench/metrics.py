@@ -66,7 +66,8 @@ reconstruction; this module only reads files, poses body models and renders.
   and a surface aligned by closest points (which lets it slide along itself), put the texture
   a pixel or two off where the frame has it (the 2026-12-01 suite: 23.4 dB transferred, 25.6
   tracked; at the key-frames, with the avatar's own poses, clothed-tight-s24 reads 24.4 dB,
-  transferred 21.5 dB).
+  transferred 21.5 dB). This was the headline figure before: the held-out PSNRs that
+  docstrings elsewhere quote from earlier measurements are of this placement.
 """
 
 from __future__ import annotations
