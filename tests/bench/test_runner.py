@@ -116,3 +116,19 @@ def test_measure_only_remeasures_earlier_runs_without_reconstructing(tiny_scene,
     assert b.wall_seconds == pytest.approx(12.5)  # the fake's report.json "seconds"
     gone = again.run(subject.name, "shape-only")
     assert gone is not None and gone.status == "failed" and "missing" in (gone.error or "")
+
+
+def test_track_rounds_reach_the_bench_from_the_cli(tmp_path, monkeypatch, capsys):
+    """``--track-rounds`` defaults to the metrics' rounds, is passed on, and must not be
+    negative."""
+    from monoavatar.bench.metrics import HELDOUT_TRACK_ROUNDS
+    from monoavatar.cli import main
+
+    calls = []
+    monkeypatch.setattr(runner, "run_bench", lambda out, **kw: calls.append(kw))
+    assert main(["bench", "-o", str(tmp_path), "--quiet"]) == 0
+    assert main(["bench", "-o", str(tmp_path), "--quiet", "--track-rounds", "0"]) == 0
+    assert [c["track_rounds"] for c in calls] == [HELDOUT_TRACK_ROUNDS, 0]
+    assert main(["bench", "-o", str(tmp_path), "--track-rounds", "-1"]) == 2
+    assert "--track-rounds must be >= 0" in capsys.readouterr().err
+    assert len(calls) == 2
