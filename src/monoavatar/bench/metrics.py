@@ -399,6 +399,10 @@ class SubjectMetrics:
             the held-out frames, before the tracker's flow rounds.
         heldout_track_seconds: the tracker's seconds for the held-out frames (perception
             included).
+        heldout_pa_mpjpe_mm: PA-MPJPE of the tracked held-out poses' joints against the
+            truth's, mm (how well the tracker tracks); ``heldout_root_error_deg`` the median
+            root orientation error over the held-out frames; the ``_interpolated`` variants
+            for the interpolated poses.
         missed_fraction: in the held-out renders, the fraction of ground-truth person pixels
             the avatar does not cover (they count against grey in ``psnr_db``).
         missed_error_share: the share of ``psnr_db``'s squared error that lies on them.
@@ -432,6 +436,10 @@ class SubjectMetrics:
     psnr_true_poses_db: float | None = None
     psnr_interpolated_db: float | None = None
     heldout_track_seconds: float | None = None
+    heldout_pa_mpjpe_mm: float | None = None
+    heldout_pa_mpjpe_interpolated_mm: float | None = None
+    heldout_root_error_deg: float | None = None
+    heldout_root_error_interpolated_deg: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready values (non-finite numbers become None)."""
@@ -463,6 +471,10 @@ class SubjectMetrics:
             "texture_psnr_rigid_db": self.psnr_rigid_db,
             "texture_psnr_interpolated_db": self.psnr_interpolated_db,
             "heldout_track_seconds": self.heldout_track_seconds,
+            "heldout_pa_mpjpe_mm": self.heldout_pa_mpjpe_mm,
+            "heldout_pa_mpjpe_interpolated_mm": self.heldout_pa_mpjpe_interpolated_mm,
+            "heldout_root_error_deg": self.heldout_root_error_deg,
+            "heldout_root_error_interpolated_deg": self.heldout_root_error_interpolated_deg,
             "texture_missed_fraction": self.missed_fraction,
             "texture_missed_error_share": self.missed_error_share,
             "root_error_deg": self.root_error_deg,
@@ -675,14 +687,26 @@ def _key_track(recon: Reconstruction) -> PoseTrack:
     )  # fmt: skip
 
 
+@dataclass(frozen=True)
+class _Tracked:
+    """What :func:`_tracked_psnr` measures: the held-out figures with the interpolated and the
+    tracked poses, those poses (K, J, 3) and translations (K, 3) (None without a texture),
+    and the tracker's seconds."""
+
+    interpolated: _HeldOut
+    tracked: _HeldOut
+    seconds: float
+    interpolated_poses: tuple[np.ndarray, np.ndarray] | None = None
+    tracked_poses: tuple[np.ndarray, np.ndarray] | None = None
+
+
 def _tracked_psnr(recon: Reconstruction, body: BodyModel, truth: SubjectTruth,
-                  frames: np.ndarray, perception: str, rounds: int,
-                  ) -> tuple[_HeldOut, _HeldOut, float]:  # fmt: skip
+                  frames: np.ndarray, perception: str, rounds: int) -> _Tracked:  # fmt: skip
     """Held-out figures with the avatar tracked into the frames
     (:func:`monoavatar.fit.track.track_frames`, ``rounds`` flow rounds; perception
     ``"mediapipe"`` or ``"ground-truth"``: the scene's own), and with the interpolated poses
-    before the flow rounds; the tracker's seconds. (Lit by the true light, an albedo without
-    an estimate is tracked with the first held-out frame's light.)"""
+    before the flow rounds. (Lit by the true light, an albedo without an estimate is tracked
+    with the first held-out frame's light.)"""
     import time
     from dataclasses import replace
 
@@ -692,7 +716,7 @@ def _tracked_psnr(recon: Reconstruction, body: BodyModel, truth: SubjectTruth,
 
     start = time.perf_counter()
     if recon.texture is None or len(frames) == 0:
-        return _HeldOut(None, None, "unlit"), _HeldOut(None, None, "unlit"), 0.0
+        return _Tracked(_HeldOut(None, None, "unlit"), _HeldOut(None, None, "unlit"), 0.0)
     held = read_synth_scene(truth.scene.folder, frames=frames)
     if perception == "ground-truth":
         obs = held.observations
@@ -710,7 +734,7 @@ def _tracked_psnr(recon: Reconstruction, body: BodyModel, truth: SubjectTruth,
         sh = np.stack([_sh_to_world(truth.sh[f], truth.scene.camera.R, recon.camera.R)
                        for f in frames])  # fmt: skip
     texture = recon.texture.astype(np.float64) / 255.0
-    figures = []
+    figures, poses = [], []
     for n in (0, rounds):
         track = track_frames(body, obs, held.frames.images, _key_track(recon), recon.shape,
                              recon.offsets, texture, None if sh is None else sh[0], n)  # fmt: skip
@@ -718,7 +742,8 @@ def _tracked_psnr(recon: Reconstruction, body: BodyModel, truth: SubjectTruth,
         pred, covered = _render_heldout(body, verts, recon.camera, recon.texture, sh)
         figures.append(_held_out_figures(pred, held.frames.images, held.ground_truth.masks,
                                          covered, lighting))  # fmt: skip
-    return figures[0], figures[1], time.perf_counter() - start
+        poses.append((track.poses, track.translations))
+    return _Tracked(figures[0], figures[1], time.perf_counter() - start, poses[0], poses[1])
 
 
 def _held_out_figures(pred: np.ndarray, truth: np.ndarray, person: np.ndarray,
@@ -904,8 +929,23 @@ def evaluate_reconstruction(
     if surface.pose_alignment is not None:
         transferred = _heldout_psnr(recon, body, truth, surface.pose_alignment, held,
                                     surface.aligned_pose)  # fmt: skip
-    interpolated, heldout, track_seconds = _tracked_psnr(recon, body, truth, held, perception,
-                                                         track_rounds)  # fmt: skip
+    tracked = _tracked_psnr(recon, body, truth, held, perception, track_rounds)
+    heldout = tracked.tracked
+
+    def heldout_pose_errors(found: tuple[np.ndarray, np.ndarray] | None,
+                            ) -> tuple[float | None, float | None]:  # fmt: skip
+        """PA-MPJPE (mm) and median root error (°) of held-out poses against the truth's."""
+        if found is None:
+            return None, None
+        _, held_joints = _pose(body, recon.shape, found[0], found[1], recon.offsets)
+        mm = pa_mpjpe(held_joints[:, [names.index(j) for j in common]],
+                      truth.joints[held][:, [gt_names.index(j) for j in common]])  # fmt: skip
+        deg = root_orientation_error_deg(found[0][:, 0], recon.camera.R, gt.poses[held][:, 0],
+                                         truth.scene.camera.R)  # fmt: skip
+        return float(mm), float(np.median(deg))
+
+    interp_mm, interp_deg = heldout_pose_errors(tracked.interpolated_poses)
+    tracked_mm, tracked_deg = heldout_pose_errors(tracked.tracked_poses)
 
     report = recon.report
     shape_only = report.get("shape_only_error_mm")
@@ -935,8 +975,12 @@ def evaluate_reconstruction(
             root_error_max_deg=float(root_deg.max()),
             root_off_frames=int((root_deg > ROOT_OFF_DEG).sum()),
             psnr_true_poses_db=transferred.mask_db,
-            psnr_interpolated_db=interpolated.mask_db,
-            heldout_track_seconds=track_seconds if heldout.mask_db is not None else None,
+            psnr_interpolated_db=tracked.interpolated.mask_db,
+            heldout_track_seconds=tracked.seconds if heldout.mask_db is not None else None,
+            heldout_pa_mpjpe_mm=tracked_mm,
+            heldout_pa_mpjpe_interpolated_mm=interp_mm,
+            heldout_root_error_deg=tracked_deg,
+            heldout_root_error_interpolated_deg=interp_deg,
         ),
         heat,
     )
