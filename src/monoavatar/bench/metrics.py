@@ -734,16 +734,17 @@ def _tracked_psnr(recon: Reconstruction, body: BodyModel, truth: SubjectTruth,
         sh = np.stack([_sh_to_world(truth.sh[f], truth.scene.camera.R, recon.camera.R)
                        for f in frames])  # fmt: skip
     texture = recon.texture.astype(np.float64) / 255.0
+    key_track = _key_track(recon)
     figures, poses = [], []
-    for n in (0, rounds):
-        track = track_frames(body, obs, held.frames.images, _key_track(recon), recon.shape,
+    for n in (0, rounds) if rounds > 0 else (0,):  # 0 rounds: the interpolated poses are it
+        track = track_frames(body, obs, held.frames.images, key_track, recon.shape,
                              recon.offsets, texture, None if sh is None else sh[0], n)  # fmt: skip
         verts, _ = _pose(body, recon.shape, track.poses, track.translations, recon.offsets)
         pred, covered = _render_heldout(body, verts, recon.camera, recon.texture, sh)
         figures.append(_held_out_figures(pred, held.frames.images, held.ground_truth.masks,
                                          covered, lighting))  # fmt: skip
         poses.append((track.poses, track.translations))
-    return _Tracked(figures[0], figures[1], time.perf_counter() - start, poses[0], poses[1])
+    return _Tracked(figures[0], figures[-1], time.perf_counter() - start, poses[0], poses[-1])
 
 
 def _held_out_figures(pred: np.ndarray, truth: np.ndarray, person: np.ndarray,
