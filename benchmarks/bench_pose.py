@@ -16,9 +16,9 @@ import numpy as np
 import torch
 
 from monoavatar.body import load_body_model
+from monoavatar.datasets.synth_scene import read_synth_scene
 from monoavatar.eval import pa_mpjpe
 from monoavatar.fit.pose import PoseSettings, evaluate_fit, fit_poses
-from monoavatar.io.synth_scene import read_synth_scene
 
 
 def flips(pred: np.ndarray, gt: np.ndarray, names: tuple[str, ...]) -> np.ndarray:

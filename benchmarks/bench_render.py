@@ -19,7 +19,7 @@ import numpy as np
 import torch
 import trimesh
 
-from monoavatar.camera import PinholeCamera
+from monoavatar.core.camera import PinholeCamera
 from monoavatar.render import (
     Fragments,
     interpolate_masked,

@@ -39,7 +39,7 @@ def _rss_mb() -> float:
 def render_heatmap(vertices: np.ndarray, faces: np.ndarray, colors: np.ndarray) -> np.ndarray:
     """Front and back views (side by side) of a Y-up, +Z-facing mesh with per-vertex colours,
     lightly shaded by the normals. Returns (H, 2W, 3) uint8."""
-    from monoavatar.camera import PinholeCamera
+    from monoavatar.core.camera import PinholeCamera
     from monoavatar.render import interpolate, rasterize, vertex_normals
 
     width, height = 400, 600
@@ -66,9 +66,9 @@ def run_scene(folder: Path, args: argparse.Namespace) -> dict[str, object]:
     from PIL import Image
 
     from monoavatar.body import load_body_model
+    from monoavatar.datasets.synth_scene import read_synth_scene
     from monoavatar.eval import error_to_rgb, surface_error_after_alignment
     from monoavatar.fit.shape import ShapeSettings, fit_consensus_shape
-    from monoavatar.io.synth_scene import read_synth_scene
 
     scene = read_synth_scene(folder)
     gt = scene.ground_truth

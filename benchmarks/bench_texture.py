@@ -33,8 +33,8 @@ import torch
 from PIL import Image
 
 from monoavatar.body import load_body_model
+from monoavatar.datasets.synth_scene import read_synth_scene
 from monoavatar.eval import psnr
-from monoavatar.io.synth_scene import read_synth_scene
 from monoavatar.render import rasterize, render_textured
 from monoavatar.texture import TextureSettings, UVTexture, build_texture, estimate_sh
 

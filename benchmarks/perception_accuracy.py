@@ -48,7 +48,7 @@ def evaluate(scene_folder: Path, settings: Any) -> tuple[Any, float, list[str], 
     Returns the :class:`PerceptionAccuracy`, seconds per frame of :func:`perceive` (detectors
     made and warmed up beforehand), the warnings perception gave, and the Observations.
     """
-    from monoavatar.io.synth_scene import read_synth_scene
+    from monoavatar.datasets.synth_scene import read_synth_scene
     from monoavatar.perception import default_detectors, perceive
     from monoavatar.perception.accuracy import perception_accuracy
 

@@ -10,7 +10,10 @@ import pytest
 import torch
 from PIL import Image
 
-from monoavatar.animate import (
+from monoavatar.body import Avatar, BodyModel, BodyModelError, lbs
+from monoavatar.core.errors import InputFormatError, InputNotFoundError
+from monoavatar.io.gltf import dense_weights, limit_influences, split_uv_seams
+from monoavatar.pipelines.animate import (
     MOTIONS,
     animate,
     animate_folder,
@@ -19,9 +22,7 @@ from monoavatar.animate import (
     walk_motion,
     wave_motion,
 )
-from monoavatar.body import Avatar, BodyModel, BodyModelError, lbs
-from monoavatar.io.errors import InputFormatError, InputNotFoundError
-from monoavatar.io.gltf import dense_weights, limit_influences, split_uv_seams
+from tests.avatar_folders import make_params, make_report, write_params_and_report
 from tests.io.gltf_reference import (
     Glb,
     animation_keyframe,
@@ -151,19 +152,9 @@ def test_motion_from_a_camera_world_is_turned_upright(tmp_path: Path, key: str) 
 
 def test_animate_folder(anny64: BodyModel, avatar: Avatar, tmp_path: Path) -> None:
     folder = tmp_path / "out"
-    folder.mkdir()
-    np.savez(
-        folder / "params.npz",
-        body_model=np.array(anny64.identity),
-        shape=avatar.shape,
-        offsets=avatar.offsets.astype(np.float32),
-        poses=np.zeros((2, anny64.num_joints, 3)),
-        translations=np.zeros((2, 3)),
-        camera_K=np.eye(3),
-        camera_R=np.eye(3),
-        camera_t=np.zeros(3),
-        image_size=np.array([64, 64]),
-    )
+    params = make_params(anny64.identity, avatar.shape, avatar.offsets.astype(np.float32),
+                         np.zeros((2, anny64.num_joints, 3)))  # fmt: skip
+    write_params_and_report(folder, params, make_report(2))
     texture = np.random.default_rng(0).integers(0, 256, (32, 32, 3), dtype=np.uint8)
     Image.fromarray(texture).save(folder / "texture.png")
     # body None: the shipped model named in params.npz is loaded
@@ -183,7 +174,7 @@ def test_animate_folder(anny64: BodyModel, avatar: Avatar, tmp_path: Path) -> No
 
 
 def test_errors(anny64: BodyModel, avatar: Avatar, tmp_path: Path) -> None:
-    with pytest.raises(ValueError, match="unknown motion 'dance'"):
+    with pytest.raises(ValueError, match="dance: unknown motion"):
         resolve_motion(anny64, "dance")
     with pytest.raises(InputNotFoundError):
         animate(anny64, avatar, tmp_path / "missing.npz", tmp_path / "x.glb")
@@ -197,12 +188,13 @@ def test_errors(anny64: BodyModel, avatar: Avatar, tmp_path: Path) -> None:
         animate(anny64, other, "walk", tmp_path / "x.glb")
     with pytest.raises(InputNotFoundError, match="params.npz"):
         animate_folder(tmp_path, "walk", tmp_path / "x.glb")
-    np.savez(
-        tmp_path / "params.npz",
-        body_model=np.array("smpl:neutral"),
-        shape=np.zeros(10),
-        offsets=np.zeros((6890, 3)),
-    )
+    # an older folder (no format key) is refused with a message that says so
+    np.savez(tmp_path / "params.npz", body_model=np.array(anny64.identity), shape=avatar.shape,
+             offsets=avatar.offsets)  # fmt: skip
+    with pytest.raises(InputFormatError, match="older monoavatar"):
+        animate_folder(tmp_path, "walk", tmp_path / "x.glb")
+    smpl = make_params("smpl:neutral", np.zeros(10), np.zeros((6890, 3)), np.zeros((1, 24, 3)))
+    write_params_and_report(tmp_path, smpl, make_report(1))
     with pytest.raises(BodyModelError, match="pass the body model"):
         animate_folder(tmp_path, "walk", tmp_path / "x.glb")
     assert not (tmp_path / "x.glb").exists()

@@ -13,8 +13,10 @@ from scipy.spatial import cKDTree
 from monoavatar.cli import main
 from monoavatar.fit.pose import PoseSettings
 from monoavatar.fit.shape import ShapeSettings
+from monoavatar.io.avatar_folder import AvatarFolder
 from monoavatar.io.export_mesh import write_mp4
-from monoavatar.reconstruct import ReconstructConfig, ReconstructError, reconstruct
+from monoavatar.pipelines.reconstruct import ReconstructConfig, reconstruct
+from monoavatar.pipelines.stages import InputSettings, PipelineError
 from monoavatar.synth.scene import SynthConfig, generate
 from monoavatar.texture.backproject import TextureSettings
 from tests.io.gltf_reference import (
@@ -24,6 +26,8 @@ from tests.io.gltf_reference import (
     validate,
     validator_available,
 )
+
+pytestmark = pytest.mark.slow  # end-to-end: not in the fast tier
 
 OUTPUTS = ("avatar.glb", "avatar.obj", "avatar.mtl", "texture.png", "params.npz", "report.json")
 
@@ -38,11 +42,11 @@ def tiny_scene(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def _fast_config(**kw: object) -> ReconstructConfig:
     return ReconstructConfig(
-        frames=24, texture_size=64, progress=False, evaluate=False,
+        input=InputSettings(frames=24), progress=False,
         pose=PoseSettings(iterations=12, init_iterations=20, silhouette_points=300,
                           boundary_points=80),
         shape=ShapeSettings(rounds=2, rays_per_frame=80),
-        texture=TextureSettings(dilation=2), refine_rounds=1, flow_rounds=1,  # each stage once
+        texture=TextureSettings(size=64, dilation=2), refine_rounds=1, flow_rounds=1,  # once each
         **kw,  # type: ignore[arg-type]
     )  # fmt: skip
 
@@ -75,10 +79,14 @@ def test_outputs_complete(tiny_result) -> None:
     assert report["scale"]["known"] is False  # no --height
     assert len(report["fit"]["silhouette_iou"]) == 24
     assert report["input"]["kind"] == "synth"
+    folder = AvatarFolder.load(out)  # the folder reads back as what the pipeline computed
+    np.testing.assert_array_equal(folder.params.poses, tiny_result.track.poses)
+    np.testing.assert_array_equal(folder.params.translations, tiny_result.track.translations)
+    assert folder.report.to_json() == tiny_result.report.to_json()
 
 
 def test_fit_is_plausible(tiny_result) -> None:
-    iou = np.asarray(tiny_result.report["fit"]["silhouette_iou"])
+    iou = np.asarray(tiny_result.report.fit.silhouette_iou)
     assert np.median(iou) > 0.6
 
 
@@ -177,7 +185,7 @@ def test_fit_poses_cli(tiny_scene: Path, tmp_path: Path, monkeypatch_module,
 def test_unwritable_output_fails_before_work(tiny_scene: Path, tmp_path: Path) -> None:
     blocker = tmp_path / "a_file"
     blocker.write_text("not a folder")
-    with pytest.raises(ReconstructError, match="cannot write"):
+    with pytest.raises(PipelineError, match="cannot write"):
         reconstruct(tiny_scene, blocker / "out", _fast_config())
 
 
@@ -189,15 +197,15 @@ def test_bad_options_are_explained(tiny_scene: Path, tmp_path: Path,
     assert main(["reconstruct", str(tmp_path / "missing.mp4"), "-o", str(tmp_path / "o")]) == 2
     assert "missing.mp4" in capsys.readouterr().err
     config = _fast_config()
-    config.frames = 1
-    with pytest.raises(ReconstructError, match="at least 2"):
+    config.input.frames = 1
+    with pytest.raises(PipelineError, match="at least 2"):
         reconstruct(tiny_scene, tmp_path / "o2", config)
 
 
 def test_shifted_track_applies_the_shape_fits_corrections_to_its_frames(tiny_result) -> None:
     from dataclasses import replace
 
-    from monoavatar.reconstruct import shifted_track
+    from monoavatar.pipelines.stages import shifted_track
 
     track = tiny_result.track
     n = len(track.poses)

@@ -1,5 +1,5 @@
 """A fake ``reconstruct`` for the benchmark's tests: it writes the output folder that
-``monoavatar.reconstruct`` writes (same files and keys), made from the scene's ground truth,
+the reconstruction pipeline writes (same files and keys), made from the scene's ground truth,
 so that the expected measurements are known.
 
 The fake's body is Anny without local changes with the true phenotype (the first 6 shape
@@ -19,15 +19,16 @@ import numpy as np
 import torch
 from PIL import Image
 
-from monoavatar.bench.metrics import read_obj
 from monoavatar.body import BodyModel
-from monoavatar.io.export_mesh import write_obj
+from monoavatar.core.camera import PinholeCamera
+from monoavatar.io.export_mesh import read_obj, write_obj
+from tests.avatar_folders import make_params, make_report
 
 STAGES = ("perception", "poses", "shape", "texture", "export")
 
 
 class FakeReconstruct:
-    """Callable like ``monoavatar.reconstruct.reconstruct(input, out_dir, config)``.
+    """Callable like ``monoavatar.pipelines.reconstruct.reconstruct(input, out_dir, config)``.
 
     Args:
         body: Anny without local changes (``load_body_model("anny")``).
@@ -36,7 +37,7 @@ class FakeReconstruct:
             itself, ``"coarse"`` the fake body (shape + offsets), or ``"scaled"`` the true mesh
             scaled by ``scale`` about the origin.
         scale: for ``"scaled"``.
-        fail_modes: ``config.poses`` values for which it raises instead.
+        fail_modes: ``config.input.poses`` values for which it raises instead.
     """
 
     def __init__(self, body: BodyModel, anny_local: BodyModel, avatar: str = "fine",
@@ -50,10 +51,11 @@ class FakeReconstruct:
 
     def __call__(self, input_path: Path, out_dir: Path, config: object) -> None:
         self.calls.append((Path(input_path), Path(out_dir), config))
-        if getattr(config, "poses", None) in self.fail_modes:
+        inputs = getattr(config, "input", None)
+        if getattr(inputs, "poses", None) in self.fail_modes:
             raise RuntimeError("fake failure")
         write_fake_reconstruction(Path(input_path), Path(out_dir), self.body, self.anny_local,
-                                  int(getattr(config, "frames", 2)), self.avatar,
+                                  int(getattr(inputs, "frames", 2)), self.avatar,
                                   self.scale)  # fmt: skip
 
 
@@ -82,30 +84,16 @@ def write_fake_reconstruction(scene: Path, out: Path, body: BodyModel, anny_loca
         write_obj(out / "avatar.obj", gv[: body.num_vertices], body.faces.numpy())
     else:
         raise ValueError(avatar)
-    texture = Image.open(scene / "gt" / "subject_000" / "canonical.png").convert("RGB")
-    texture.save(out / "texture.png")
-    np.savez(
-        out / "params.npz",
-        format=np.array("monoavatar-reconstruction-1"),
-        body_model=np.array(body.identity),
-        shape=shape[0].double().numpy(),
-        offsets=offsets,
-        poses=gt["poses"][idx],
-        translations=translations,
-        frame_indices=idx,
-        camera_K=np.asarray(camera["K"]),
-        camera_R=np.asarray(camera["R"]),
-        camera_t=np.asarray(camera["t"]),
-        image_size=np.array([camera["width"], camera["height"]]),
-        height=np.array(float(np.ptp(gv[:, 1]))),
-        scale_known=np.array(True),
-        lighting_sh=gt["sh"][0],
-    )
-    report = {
-        "timings": {s: 0.5 + i for i, s in enumerate(STAGES)},
-        "seconds": 12.5,
-        "peak_memory_mb": 321.0,
-        "warnings": ["UserWarning: fake"],
-        "texture": {"albedo": True, "size": texture.width},
-    }
-    (out / "report.json").write_text(json.dumps(report))
+    texture = np.asarray(Image.open(scene / "gt" / "subject_000" / "canonical.png")
+                         .convert("RGB"))  # fmt: skip
+    fake_camera = PinholeCamera(np.asarray(camera["K"]), np.asarray(camera["R"]),
+                                np.asarray(camera["t"]), camera["width"], camera["height"])
+    params = make_params(body.identity, shape[0].double().numpy(), offsets, gt["poses"][idx],
+                         translations, fake_camera, frame_indices=idx,
+                         height_m=float(np.ptp(gv[:, 1])), lighting_sh=gt["sh"][0])  # fmt: skip
+    report = make_report(len(idx), texture_size=texture.shape[1], warnings=["UserWarning: fake"],
+                         timings={s: 0.5 + i for i, s in enumerate(STAGES)}, seconds=12.5,
+                         peak_memory_mb=321.0)  # fmt: skip
+    params.save(out / "params.npz")
+    report.write(out / "report.json")
+    Image.fromarray(texture).save(out / "texture.png")

@@ -6,22 +6,24 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from monoavatar.bench.metrics import (
-    BodyCache,
-    MetricsError,
+from monoavatar.bench.evaluate import evaluate_reconstruction
+from monoavatar.bench.heldout import (
     _held_out_figures,
     _sh_to_world,
     _tracked_psnr,
-    body_model_name,
-    evaluate_reconstruction,
     heldout_frames,
-    load_truth,
-    read_obj,
-    read_reconstruction,
     root_orientation_error_deg,
+)
+from monoavatar.bench.metrics import (
+    BodyCache,
+    MetricsError,
+    body_model_name,
+    load_truth,
     surface_metrics,
 )
-from monoavatar.io.export_mesh import write_obj
+from monoavatar.core.errors import InputFormatError, InputNotFoundError
+from monoavatar.io.avatar_folder import AvatarFolder
+from monoavatar.io.export_mesh import read_obj, write_obj
 from monoavatar.render import directional_light_sh, vertex_normals
 
 from .fake import write_fake_reconstruction
@@ -45,7 +47,7 @@ def test_read_obj_takes_positions_and_faces_only(tmp_path):
     assert v.shape == (4, 3) and v.dtype == np.float64
     assert f.tolist() == [[0, 1, 2], [0, 2, 3], [0, 1, 3]]
     (tmp_path / "empty.obj").write_text("# nothing\n")
-    with pytest.raises(MetricsError, match="no vertices"):
+    with pytest.raises(InputFormatError, match="no vertices"):
         read_obj(tmp_path / "empty.obj")
 
 
@@ -69,6 +71,7 @@ def test_scaled_moved_truth_has_zero_error(coarse_truth):
     assert heat.errors.shape == (len(v),)
 
 
+@pytest.mark.slow
 def test_normal_offset_of_two_millimetres(coarse_truth):
     """Every vertex moved 2 mm along its normal. Each moved vertex lies within 2 mm of the true
     surface (its origin is on it), and exactly 2 mm where the surface is locally flat; in
@@ -117,15 +120,15 @@ def test_root_orientation_error_is_compared_in_camera_axes():
 def test_reconstruction_folder_is_read(tiny_scene, anny32, anny_local, tmp_path):
     _, _, folder = tiny_scene
     write_fake_reconstruction(folder, tmp_path / "rec", anny32, anny_local, 2, "coarse")
-    rec = read_reconstruction(tmp_path / "rec")
+    rec = AvatarFolder.load(tmp_path / "rec")
     assert rec.vertices.shape == (anny32.num_vertices, 3)
-    assert rec.offsets.shape == (anny32.num_vertices, 3)
-    assert rec.frame_indices.tolist() == [0, 5]
+    assert rec.params.offsets.shape == (anny32.num_vertices, 3)
+    assert rec.params.frame_indices.tolist() == [0, 5]
     assert rec.texture is not None and rec.texture.dtype == np.uint8
-    assert rec.texture_is_albedo
+    assert rec.report.texture.albedo
     (tmp_path / "rec" / "params.npz").unlink()
-    with pytest.raises(MetricsError, match="params.npz missing"):
-        read_reconstruction(tmp_path / "rec")
+    with pytest.raises(InputNotFoundError, match="params.npz"):
+        AvatarFolder.load(tmp_path / "rec")
 
 
 def test_lighting_follows_the_camera_between_worlds():
@@ -142,6 +145,7 @@ def test_lighting_follows_the_camera_between_worlds():
     np.testing.assert_array_equal(_sh_to_world(sh, r_to, r_to), sh)
 
 
+@pytest.mark.slow
 def test_heldout_placement_follows_the_surface_not_the_root_joint(tiny_scene, anny32, anny_local,
                                                                    tmp_path):  # fmt: skip
     """Where the root joint sits inside the body is invisible: moving the avatar's surface
@@ -170,6 +174,7 @@ def test_heldout_placement_follows_the_surface_not_the_root_joint(tiny_scene, an
     assert moved.psnr_true_poses_db == pytest.approx(base.psnr_true_poses_db, abs=0.3)
 
 
+@pytest.mark.slow
 def test_heldout_renders_use_the_aligned_canonical_pose(tiny_scene, anny32, anny_local,
                                                         tmp_path):  # fmt: skip
     """An avatar whose canonical pose has both arms raised 10° (right shape, other pose) is
@@ -255,8 +260,8 @@ def test_heldout_poses_are_tracked_back_from_turned_key_frames(tiny_scene, anny3
     bodies = BodyCache()
     truth = load_truth(folder, bodies)
     write_fake_reconstruction(folder, tmp_path / "rec", anny32, anny_local, 4, "coarse")
-    rec = read_reconstruction(tmp_path / "rec")
-    held = heldout_frames(len(truth.scene.ground_truth.poses), rec.frame_indices, 20)
+    rec = AvatarFolder.load(tmp_path / "rec")
+    held = heldout_frames(len(truth.scene.ground_truth.poses), rec.params.frame_indices, 20)
     assert held.tolist() == [1, 4]
     right = _tracked_psnr(rec, anny32, truth, held, "ground-truth", 0).interpolated
 
@@ -264,7 +269,7 @@ def test_heldout_poses_are_tracked_back_from_turned_key_frames(tiny_scene, anny3
     turn = Rotation.from_euler("y", 10, degrees=True)
     params["poses"][:, 0] = (turn * Rotation.from_rotvec(params["poses"][:, 0])).as_rotvec()
     np.savez(tmp_path / "rec" / "params.npz", **params)
-    turned = read_reconstruction(tmp_path / "rec")
+    turned = AvatarFolder.load(tmp_path / "rec")
     result = _tracked_psnr(turned, anny32, truth, held, "ground-truth", 2)
     interpolated, tracked = result.interpolated, result.tracked
 
@@ -274,9 +279,9 @@ def test_heldout_poses_are_tracked_back_from_turned_key_frames(tiny_scene, anny3
     assert result.interpolated_poses is not None and result.tracked_poses is not None
     true_roots = truth.scene.ground_truth.poses[held][:, 0]
     camera_r = truth.scene.camera.R
-    before = root_orientation_error_deg(result.interpolated_poses[0][:, 0], turned.camera.R,
+    before = root_orientation_error_deg(result.interpolated_poses[0][:, 0], turned.params.camera.R,
                                         true_roots, camera_r)  # fmt: skip
-    after = root_orientation_error_deg(result.tracked_poses[0][:, 0], turned.camera.R,
+    after = root_orientation_error_deg(result.tracked_poses[0][:, 0], turned.params.camera.R,
                                        true_roots, camera_r)  # fmt: skip
     np.testing.assert_allclose(before, 10.0, atol=1.5)
     # measured: 10° → 8.7° and 6.9° on the two 96 x 96 frames

@@ -44,6 +44,7 @@ def _joints(rig, pose):
     )
 
 
+@pytest.mark.slow
 def test_a_known_pose_is_recovered_and_removed(rigged):
     """The truth is the same mesh with the arms raised and lowered by 8–10° and the spine bent
     5°, then scaled and moved: the rigid alignment leaves millimetres, the pose alignment
@@ -75,6 +76,7 @@ def test_a_known_pose_is_recovered_and_removed(rigged):
     assert np.linalg.norm(found - expected, axis=1).max() < 0.005
 
 
+@pytest.mark.slow
 def test_shape_differences_are_not_posed_away(rigged):
     """A belly pushed out by 3 cm is shape: the pose alignment keeps most of its error."""
     rest, faces, rig, body = rigged

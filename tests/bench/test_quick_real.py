@@ -10,6 +10,8 @@ import pytest
 
 from monoavatar.cli import main
 
+pytestmark = pytest.mark.slow  # end-to-end: not in the fast tier
+
 
 def test_bench_quick_end_to_end(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                 capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip

@@ -102,7 +102,7 @@ def test_unpose_inverts_pose_for_points_normals_rays(anny64):
     origin = body.pose_points(origin_rest, ids, out.transforms)
     direction = posed - origin
     o2, d2 = body.unpose_rays(origin, direction, ids, out.transforms)
-    from monoavatar.camera import plucker, point_line_distance
+    from monoavatar.core.camera import plucker, point_line_distance
 
     m, n = plucker(o2, d2)
     assert point_line_distance(pts, m, n).max() <= 1e-6

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from monoavatar.camera import PinholeCamera
+from monoavatar.core.camera import PinholeCamera
 from monoavatar.perception.observations import Observations
 
 

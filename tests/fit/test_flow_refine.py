@@ -16,7 +16,7 @@ import pytest
 import torch
 
 from monoavatar.body.model import BodyModel
-from monoavatar.camera import PinholeCamera
+from monoavatar.core.camera import PinholeCamera
 from monoavatar.fit.flow_refine import (
     FlowRefineSettings,
     contour_correspondences,
@@ -178,6 +178,7 @@ def test_correspondences_follow_a_known_flow_and_skip_hidden_points(anny32: Body
     assert not valid_off.any()
 
 
+@pytest.mark.slow
 def test_flow_recovers_turns_keypoints_and_silhouette_do_not_show(anny32: BodyModel) -> None:
     obs, images, poses, texture = _scene(anny32)
     start = _track(anny32, _perturbed(anny32, poses), obs.camera)

@@ -18,7 +18,8 @@ import torch
 
 from monoavatar.body import lbs
 from monoavatar.body.model import BodyModel
-from monoavatar.camera import PinholeCamera
+from monoavatar.core.camera import PinholeCamera
+from monoavatar.core.landmarks import MEDIAPIPE_MIRROR
 from monoavatar.eval import align_similarity, pa_mpjpe, silhouette_iou
 from monoavatar.fit.pose import (
     PoseFitError,
@@ -27,7 +28,6 @@ from monoavatar.fit.pose import (
     evaluate_fit,
     fit_poses,
 )
-from monoavatar.landmarks import MEDIAPIPE_MIRROR
 from monoavatar.perception.observations import Observations
 from monoavatar.render import rasterize
 from tests.fit.observations import scene_observations
@@ -266,6 +266,7 @@ def test_refit_recovers_a_back_view_fit_stalled_far_off(anny32: BodyModel) -> No
     fitted from a start turned another 120°: the local fit ends 78° off) is recovered by the
     per-frame re-fit from its alternative starts (half and quarter turns, swapped keypoints)."""
     from monoavatar.fit import pose as posefit
+    from monoavatar.fit import pose_energy as pe
     from monoavatar.fit.prior import apose_prior
 
     poses = _turn_poses(anny32, 1, 0.0)
@@ -274,14 +275,14 @@ def test_refit_recovers_a_back_view_fit_stalled_far_off(anny32: BodyModel) -> No
     settings = SETTINGS
     with torch.no_grad():
         rest, joints = anny32.rest_shape(torch.zeros(1, anny32.shape_dim, dtype=anny32.dtype))
-    ctx = posefit._context(anny32, scene.obs.camera, settings, apose_prior(anny32), rest[0],
+    ctx = pe.energy_context(anny32, scene.obs.camera, settings, apose_prior(anny32), rest[0],
                            joints[0])  # fmt: skip
-    ids = posefit._subset_ids(anny32, settings.silhouette_points, settings.seed)
-    sub = posefit._make_subset(anny32, rest[0], joints[0], ids)
-    frame = posefit._frames(scene.obs, np.array([0]), settings, anny32.dtype)
+    ids = pe.subset_ids(anny32, settings.silhouette_points, settings.seed)
+    sub = pe.make_subset(anny32, rest[0], joints[0], ids)
+    frame = pe.frames_at(scene.obs, np.array([0]), settings, anny32.dtype)
     start = poses.copy()
     start[0, 0, 1] += np.radians(120.0)
-    p0, t0, e0 = posefit._fit_window(ctx, sub, frame, start, np.zeros((1, 3)), None)
+    p0, t0, e0 = pe.fit_window(ctx, sub, frame, start, np.zeros((1, 3)), None)
     assert _heading_error_deg(p0, poses)[0] > 45.0  # measured 78°: the local fit stalls
     p, _, e = posefit._refit_frame(ctx, sub, frame, p0[0], t0[0], float(e0[0]))
     assert _heading_error_deg(p[None], poses)[0] < 20.0  # measured 13°
@@ -371,8 +372,8 @@ def test_refine_poses_with_offsets_recovers_the_pose_of_a_clothed_body(anny32: B
     """A body in "clothing" (offsets D of 2-4 cm along the normals of the trunk and legs) is
     rendered turning; refine_poses starts from poses turned 12° too little and shifted 3 cm and
     must find the true ones with D on the silhouette, the keypoints staying on the body."""
+    from monoavatar.core.geometry import vertex_normals
     from monoavatar.fit.pose import refine_poses
-    from monoavatar.render.renders import vertex_normals
 
     body, n = anny32, 8
     poses = _turn_poses(body, n, 20.0)
@@ -413,7 +414,7 @@ def test_refine_poses_with_offsets_recovers_the_pose_of_a_clothed_body(anny32: B
 def test_subset_poses_keypoints_and_points_as_the_whole_body_does(anny32: BodyModel) -> None:
     """The subset's keypoints (from its per-joint basis) and its points with offsets D equal
     those of the whole body posed by its forward pass and regressed."""
-    import monoavatar.fit.pose as posefit
+    import monoavatar.fit.pose_energy as pe
 
     rng = np.random.default_rng(3)
     shape = torch.as_tensor(rng.normal(0.0, 0.5, (1, anny32.shape_dim)), dtype=anny32.dtype)
@@ -423,8 +424,8 @@ def test_subset_poses_keypoints_and_points_as_the_whole_body_does(anny32: BodyMo
                               dtype=anny32.dtype)  # fmt: skip
     with torch.no_grad():
         rest, joints = anny32.rest_shape(shape)
-        ids = posefit._subset_ids(anny32, 200, 0)
-        sub = replace(posefit._make_subset(anny32, rest[0], joints[0], ids), offsets=offsets[ids])
+        ids = pe.subset_ids(anny32, 200, 0)
+        sub = replace(pe.make_subset(anny32, rest[0], joints[0], ids), offsets=offsets[ids])
         keypoints, posed_joints, points = sub.pose(lbs.axis_angle_to_matrix(pose), translation)
         plain = anny32(shape=shape.expand(2, -1), pose=pose, translation=translation)
         with_d = anny32(shape=shape.expand(2, -1), pose=pose, translation=translation,

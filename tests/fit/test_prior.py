@@ -7,9 +7,9 @@ import pytest
 import torch
 
 from monoavatar.body.model import BodyModel
+from monoavatar.body.motion import turnaround
 from monoavatar.fit.energies import gaussian_prior_energy
 from monoavatar.fit.prior import PosePrior, apose_prior
-from monoavatar.synth.motion import turnaround
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from monoavatar.body import REGIONS, BodyModel
-from monoavatar.camera import PinholeCamera, plucker, point_line_distance
+from monoavatar.core.camera import PinholeCamera, plucker, point_line_distance
 from monoavatar.fit.laplacian import (
     edge_laplacian,
     mesh_edges,

@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from monoavatar.camera import CameraError, PinholeCamera
+from monoavatar.core.camera import CameraError, PinholeCamera
 from monoavatar.io import DEFAULT_DIAGONAL_FOV_DEG, default_camera, default_focal, resolve_camera
 
 

@@ -3,11 +3,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from monoavatar.perception.landmarks import (
+from monoavatar.core.landmarks import (
     BODY25_TO_MEDIAPIPE,
     COCO18_TO_MEDIAPIPE,
     FACE68_TO_MEDIAPIPE468,
-    MEDIAPIPE_POSE_LANDMARKS,
+    MEDIAPIPE_LANDMARKS,
     OPENPOSE_BODY25,
     OPENPOSE_COCO18,
     mediapipe_face_to_68,
@@ -17,11 +17,11 @@ from monoavatar.perception.landmarks import (
 
 
 def test_body_tables_pair_same_named_joints() -> None:
-    assert len(MEDIAPIPE_POSE_LANDMARKS) == 33
+    assert len(MEDIAPIPE_LANDMARKS) == 33
     for table, names in ((COCO18_TO_MEDIAPIPE, OPENPOSE_COCO18),
                          (BODY25_TO_MEDIAPIPE, OPENPOSE_BODY25)):
         for src, dst in table:
-            source, target = names[src], MEDIAPIPE_POSE_LANDMARKS[dst]
+            source, target = names[src], MEDIAPIPE_LANDMARKS[dst]
             expected = source.replace("big_toe", "foot_index")
             assert target == expected, (source, target)
         assert len(set(table[:, 1])) == len(table)  # one source per landmark
@@ -38,7 +38,7 @@ def test_body_conversion_batches_and_shifts() -> None:
     kp[1, 2, OPENPOSE_COCO18.index("nose")] = 0.0  # missing
     out = openpose_to_mediapipe_body(kp, "coco18")
     assert out.shape == (2, 4, 33, 3) and out.dtype == np.float32
-    nose = MEDIAPIPE_POSE_LANDMARKS.index("nose")
+    nose = MEDIAPIPE_LANDMARKS.index("nose")
     np.testing.assert_allclose(out[0, 0, nose], [10.5, 20.5, 0.7], rtol=1e-6)
     assert np.all(out[1, 2, nose] == 0)
     assert np.count_nonzero(out[0, 0, :, 2]) == 17

@@ -12,7 +12,7 @@ import pytest
 
 from monoavatar.io import Frames
 from monoavatar.perception import (
-    MEDIAPIPE_POSE_LANDMARKS,
+    MEDIAPIPE_LANDMARKS,
     MultiplePeopleWarning,
     NoPersonError,
     NoPersonWarning,
@@ -25,7 +25,7 @@ from monoavatar.perception import (
 )
 from monoavatar.perception.mediapipe_backend import MediaPipeFaceMesh, MediaPipePose
 
-LM = {name: i for i, name in enumerate(MEDIAPIPE_POSE_LANDMARKS)}
+LM = {name: i for i, name in enumerate(MEDIAPIPE_LANDMARKS)}
 
 
 def _inside(mask: np.ndarray, xy: np.ndarray) -> bool:

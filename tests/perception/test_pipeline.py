@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from monoavatar.camera import PinholeCamera
+from monoavatar.core.camera import PinholeCamera
 from monoavatar.io import Frames, default_camera
 from monoavatar.perception import (
     Detectors,

@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 
 from monoavatar.body.model import BodyModel
-from monoavatar.io.synth_scene import SynthScene, read_synth_scene
-from monoavatar.landmarks import MEDIAPIPE_MIRROR
+from monoavatar.core.landmarks import MEDIAPIPE_MIRROR
+from monoavatar.datasets.synth_scene import SynthScene, read_synth_scene
 from monoavatar.perception import (
     MultiplePeopleWarning,
     Observations,

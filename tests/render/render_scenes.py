@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-from monoavatar.camera import PinholeCamera
+from monoavatar.core.camera import PinholeCamera
 
 
 def look_at_camera(

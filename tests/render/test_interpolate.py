@@ -8,7 +8,7 @@ import torch
 import trimesh
 from render_scenes import concatenate, look_at_camera
 
-from monoavatar.camera import PinholeCamera
+from monoavatar.core.camera import PinholeCamera
 from monoavatar.render import (
     Fragments,
     interpolate,

@@ -10,7 +10,7 @@ import torch
 import trimesh
 from render_scenes import concatenate, look_at_camera, raycast
 
-from monoavatar.camera import PinholeCamera
+from monoavatar.core.camera import PinholeCamera
 from monoavatar.render import Fragments, RasterSettings, rasterize
 from monoavatar.render.raster import (
     _edge_function,

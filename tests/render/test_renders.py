@@ -10,7 +10,7 @@ import torch
 import trimesh
 from render_scenes import look_at_camera
 
-from monoavatar.camera import PinholeCamera
+from monoavatar.core.camera import PinholeCamera
 from monoavatar.render import (
     rasterize,
     render_depth,
@@ -204,7 +204,7 @@ def test_invalid_input() -> None:
 
 def test_render_textured_leaves_the_background_untouched():
     """A full-size background tensor is the caller's: rendering twice must not accumulate."""
-    from monoavatar.camera import PinholeCamera
+    from monoavatar.core.camera import PinholeCamera
     from monoavatar.render import rasterize, render_textured
 
     cam = PinholeCamera.from_focal(50.0, 32, 32)

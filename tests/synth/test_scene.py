@@ -9,8 +9,8 @@ import torch
 from PIL import Image
 
 from monoavatar.body import MEDIAPIPE_LANDMARKS
-from monoavatar.camera import PinholeCamera
 from monoavatar.cli import main
+from monoavatar.core.camera import PinholeCamera
 from monoavatar.render import rasterize
 from monoavatar.synth import scene as scene_mod
 from monoavatar.synth.scene import SynthConfig, SynthError, generate

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from monoavatar.camera import PinholeCamera
+from monoavatar.core.camera import PinholeCamera
 from monoavatar.render import rasterize, render_textured
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from monoavatar.camera import PinholeCamera
+from monoavatar.core.camera import PinholeCamera
 from monoavatar.eval import psnr
 from monoavatar.render import directional_light_sh
 from monoavatar.texture import TextureError, TextureSettings, UVTexture, build_atlas, build_texture

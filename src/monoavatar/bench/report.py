@@ -21,7 +21,8 @@ from typing import Any
 import numpy as np
 from PIL import Image, ImageDraw
 
-from monoavatar.bench.metrics import ROOT_OFF_DEG, HeatMap, SubjectMetrics
+from monoavatar.bench.heldout import ROOT_OFF_DEG
+from monoavatar.bench.metrics import HeatMap, SubjectMetrics
 from monoavatar.bench.suite import CATEGORIES, BenchMode, BenchSubject, BenchSuite
 
 __all__ = [
@@ -501,7 +502,7 @@ def render_heatmap(heat: HeatMap, size: int = 480, max_error: float = 0.02,
     (blue 0 mm → red ≥ ``max_error``). Returns (H, W, 3) uint8."""
     import torch
 
-    from monoavatar.camera import PinholeCamera
+    from monoavatar.core.camera import PinholeCamera
     from monoavatar.eval import error_to_rgb
     from monoavatar.render import interpolate, rasterize, vertex_normals
 

@@ -31,12 +31,9 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from monoavatar.bench.metrics import (
-    HELDOUT_TRACK_ROUNDS,
-    BodyCache,
-    evaluate_reconstruction,
-    load_truth,
-)
+from monoavatar.bench.evaluate import evaluate_reconstruction
+from monoavatar.bench.heldout import HELDOUT_TRACK_ROUNDS
+from monoavatar.bench.metrics import BodyCache, load_truth
 from monoavatar.bench.report import (
     BenchResults,
     RunResult,
@@ -50,7 +47,8 @@ from monoavatar.bench.suite import MODES, BenchMode, BenchSubject, ensure_scene,
 __all__ = ["HEIGHT", "MAX_HELDOUT", "ReconstructFn", "run_bench"]
 
 ReconstructFn = Callable[[Path, Path, Any], object]
-"""``reconstruct(input, out_dir, config)`` as :func:`monoavatar.reconstruct.reconstruct`."""
+"""``reconstruct(input, out_dir, config)`` as
+:func:`monoavatar.pipelines.reconstruct.reconstruct`."""
 
 MAX_HELDOUT = 20
 """Held-out frames (evenly spread) that the texture PSNR averages over, per run."""
@@ -61,23 +59,25 @@ HEIGHT: float | None = None
 
 
 def _default_reconstruct() -> ReconstructFn:
-    from monoavatar.reconstruct import reconstruct
+    from monoavatar.pipelines.reconstruct import reconstruct
 
     return reconstruct
 
 
-def _make_config(subject: BenchSubject, mode: BenchMode, progress: bool) -> Any:
-    from monoavatar.reconstruct import ReconstructConfig
+def _make_config(subject: BenchSubject, mode: BenchMode, progress: bool,
+                 workers: int = 2) -> Any:  # fmt: skip
+    from monoavatar.pipelines.reconstruct import ReconstructConfig
+    from monoavatar.pipelines.stages import InputSettings
 
+    base = ReconstructConfig()
     return ReconstructConfig(
-        frames=subject.keyframes,
-        height=HEIGHT,
-        texture_size=subject.texture_size,
-        perception=mode.perception,
-        poses=mode.poses,
-        offsets=mode.offsets,
+        input=InputSettings(frames=subject.keyframes, perception=mode.perception,
+                            poses=mode.poses),  # fmt: skip
         progress=progress,
-        evaluate=False,  # the bench measures the surface error itself
+        pose=replace(base.pose, height=HEIGHT),
+        shape=replace(base.shape, fit_offsets=mode.offsets),
+        texture=replace(base.texture, size=subject.texture_size, workers=workers),
+        flow=replace(base.flow, workers=workers),
     )
 
 
@@ -136,6 +136,7 @@ def run_bench(
     scenes_dir: str | Path | None = None,
     measure_only: bool = False,
     track_rounds: int = HELDOUT_TRACK_ROUNDS,
+    workers: int = 2,
 ) -> BenchResults:
     """Run the benchmark and write ``results.json``, ``results.md`` and heat maps.
 
@@ -146,7 +147,7 @@ def run_bench(
             :class:`~monoavatar.bench.suite.SuiteError` listing the valid ones).
         gt_poses: also reconstruct with ground-truth poses (the second column of Table B.1).
         reconstruct: the reconstruction function (default
-            :func:`monoavatar.reconstruct.reconstruct`); called as
+            :func:`monoavatar.pipelines.reconstruct.reconstruct`); called as
             ``reconstruct(scene_folder, run_folder, ReconstructConfig(...))``.
         progress: progress lines on stderr, the reconstruction's progress bars, and the
             final table on stdout.
@@ -156,6 +157,8 @@ def run_bench(
             then the reconstructions' own (``report.json``); a missing folder is a failed run.
         track_rounds: flow rounds of the tracker that poses the avatar in the held-out frames
             for the texture PSNR (0: the key-frames' poses interpolated).
+        workers: threads of the reconstructions' flow and texture stages and of the tracker
+            (results vary between runs by float rounding).
 
     Returns:
         :class:`~monoavatar.bench.report.BenchResults`; ``.table`` is the Markdown that
@@ -193,7 +196,7 @@ def run_bench(
                 folder.mkdir(parents=True)
                 _say(progress, f"bench [{count}/{total}] {subject.name}, {mode.label}: "
                                f"reconstructing {subject.keyframes} key-frames")  # fmt: skip
-                config = _make_config(subject, mode, progress)
+                config = _make_config(subject, mode, progress, workers)
                 measured_peak = _reset_peak_rss()
                 t0 = time.perf_counter()
                 try:
@@ -214,7 +217,8 @@ def run_bench(
                 metrics, heat = evaluate_reconstruction(folder, truth, bodies,
                                                         max_heldout=MAX_HELDOUT,
                                                         perception=mode.perception,
-                                                        track_rounds=track_rounds)  # fmt: skip
+                                                        track_rounds=track_rounds,
+                                                        workers=workers)  # fmt: skip
             except Exception as exc:  # noqa: BLE001 - recorded, the benchmark goes on
                 run.error = "evaluation: " + _short_error(exc)
                 _say(progress, f"  failed: {run.error}")

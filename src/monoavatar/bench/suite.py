@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from monoavatar.core.errors import MonoavatarError
 from monoavatar.synth.options import CLOTHING
 
 if TYPE_CHECKING:
@@ -82,7 +83,7 @@ every run it starts from an empty cache, so its timings stand alone). *gt-poses*
 poses with the scene's exact masks (and jittered keypoints), which isolates the shape stage."""
 
 
-class SuiteError(ValueError):
+class SuiteError(MonoavatarError, ValueError):
     """Unknown subject names, or a scene folder that cannot be made."""
 
 
@@ -199,7 +200,7 @@ def _subject(category: str, clothing: str, seed: int) -> BenchSubject:
 # What each seed draws: sex (Anny's gender phenotype: 0 male, 1 female), height of the clothed
 # canonical mesh (hair and shoes included), notable phenotype offsets from Anny's average
 # (weight w, muscle m) and skin tone (index 0 = lightest … 5 = darkest). Seeds were chosen
-# among 0-39 for adult heights (the generator also draws 1.1 m and 2.1 m bodies) and variety.
+# for adult heights and variety.
 FULL_SUBJECTS: tuple[BenchSubject, ...] = (
     _subject("minimal", "minimal", 3),  # m, 1.47 m, w +0.11, skin 5
     _subject("minimal", "minimal", 7),  # f, 1.79 m, lean (w -0.22, m +0.18), skin 3

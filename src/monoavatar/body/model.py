@@ -23,7 +23,8 @@ import torch
 from torch import Tensor, nn
 
 from monoavatar.body import lbs
-from monoavatar.landmarks import COCO17_IN_MEDIAPIPE, MEDIAPIPE_LANDMARKS
+from monoavatar.core.errors import MonoavatarError
+from monoavatar.core.landmarks import COCO17_IN_MEDIAPIPE, MEDIAPIPE_LANDMARKS
 
 #: Per-vertex region labels, for per-vertex regularisation weights (Sec. B.3.3).
 REGIONS: tuple[str, ...] = ("torso", "face", "hair", "arms", "hands", "legs", "feet")
@@ -38,7 +39,7 @@ __all__ = [
 ]
 
 
-class BodyModelError(ValueError):
+class BodyModelError(MonoavatarError, ValueError):
     """Bad input to a body model: wrong shapes, unknown names, missing or corrupt files."""
 
 
@@ -304,7 +305,7 @@ class BodyModel(nn.Module):
         Each ray is mapped by the inverse blended transform of its vertex, an affine map, so
         lines stay lines. Args: origins, directions (B, N, 3) posed; vertex_ids (N,) or (B, N).
         Returns canonical (origins, unit directions), (B, N, 3) each; use
-        :func:`monoavatar.camera.plucker` for Plücker coordinates.
+        :func:`monoavatar.core.camera.plucker` for Plücker coordinates.
         """
         canonical_origins = self.unpose_points(origins, vertex_ids, transforms, correctives)
         return canonical_origins, self.unpose_directions(directions, vertex_ids, transforms)

@@ -29,8 +29,8 @@ from torch import Tensor
 
 from monoavatar.body import labels
 from monoavatar.body.model import MEDIAPIPE_LANDMARKS, BodyModel, BodyModelError
-from monoavatar.io.errors import InputError
-from monoavatar.io.safe_pickle import safe_load
+from monoavatar.core.errors import InputError
+from monoavatar.core.safe_pickle import safe_load
 
 SMPL_HELP = (
     "SMPL and SMPL-X are licensed and cannot be shipped with monoavatar. Register at "

@@ -15,7 +15,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from monoavatar.render.renders import vertex_normals
+from monoavatar.core.geometry import vertex_normals
 
 
 def _edges_and_faces(faces: np.ndarray, offset: int) -> tuple[np.ndarray, np.ndarray]:

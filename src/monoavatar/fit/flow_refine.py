@@ -20,21 +20,6 @@ the model and correct the warp by optical flow, E_match of Eq. C.13), with the t
 avatar's render in place of the neighbouring frame: it aligns every key-frame with the same
 texture, so the views agree where they are combined.
 
-Measured before the outline term and the shape re-fit after each round, by refining the
-bench's fitted avatars (30 key-frames, estimated poses, one round,
-these defaults) and texturing them again: held-out texture PSNR +0.07 dB (minimal-s3) and
-+0.23 dB (clothed-tight-s24), PA-MPJPE −0.9 and −1.4 mm, key-frame silhouette IoU +0.01
-(without the outline margin, with 3000 points and 10 rigid iterations first, also on
-clothed-loose-s27: +0.09 to +0.21 dB, at twice the time). The gain is bounded by how slowly
-the poses converge: on renders of a textured body with a perfect texture, one round removes
-about half of a 5° turn (flow from a render to the frame underestimates the displacement;
-each round starts from the last one's poses). Texturing the bench avatars from key-frame
-poses as good as the truth's would gain 0.8 dB (minimal-s3) to 3.7 dB (clothed-tight-s24), so
-better poses remain the largest lever on the texture. With the outline term, and the shape
-fitted again after each round (:mod:`monoavatar.reconstruct`), 3 bench subjects, 2 rounds:
-key-frame silhouette IoU 0.960 against 0.951 without the outline term, surface error 2.55
-against 2.58 mm, held-out texture PSNR 22.80 against 22.88 dB (the PSNR counts missed
-person pixels but not spilled ones, so a looser outline scores a little higher on it).
 """
 
 from __future__ import annotations
@@ -49,15 +34,15 @@ from torch import Tensor
 from tqdm import tqdm
 
 from monoavatar.body import BodyModel
-from monoavatar.camera import PinholeCamera
+from monoavatar.core.camera import PinholeCamera
+from monoavatar.core.threads import frame_pool, torch_threads
 from monoavatar.fit import pose as posefit
+from monoavatar.fit import pose_energy as pe
 from monoavatar.fit.prior import apose_prior
 from monoavatar.fit.rays import contour_candidates, match_boundary, silhouette_boundary
-from monoavatar.fit.threads import frame_pool, torch_threads
 from monoavatar.perception.flow import DISFlow
 from monoavatar.perception.observations import Observations
-from monoavatar.render import Fragments, rasterize, vertex_normals
-from monoavatar.texture.backproject import flow_to_frame
+from monoavatar.render import Fragments, rasterize, render_over_image, vertex_normals
 
 __all__ = [
     "FlowRefineSettings",
@@ -74,8 +59,7 @@ class FlowRefineSettings:
 
     Attributes:
         points: model points (random vertices) that get a flow correspondence.
-        iterations: L-BFGS iterations per key-frame (fewer lose most of the gain: 15
-            iterations on 800 points gave none on the striped bench subject).
+        iterations: L-BFGS iterations per key-frame.
         rigid_iterations: iterations on the root rotation and translation alone first (the
             poses are already close: none by default).
         weight: weight of the flow term against the pose energy's terms (whose keypoint term
@@ -87,9 +71,7 @@ class FlowRefineSettings:
             buffer at its pixel.
         edge_margin: pixels; points closer than this to the render's outline get no target.
             Flow there mixes the person with the background, which is the same in both
-            images, and comes out too short: on renders of a textured body, flow regressed
-            on the true displacement had slope 0.41 on all visible points, 0.84 on those
-            more than 6 px inside.
+            images, and comes out too short.
         preset: the DIS preset (``"ultrafast"``, ``"fast"``, ``"medium"``).
         contour_weight: weight of the outline term (0: none): vertices on the posed
             avatar's outline (contour generator) matched to the observed mask's sub-pixel
@@ -106,7 +88,7 @@ class FlowRefineSettings:
             vertex get no match.
         workers: threads that fit key-frames side by side (each frame's fit is independent
             of the others', so the poses depend on the count only through rounding; see
-            :func:`monoavatar.fit.threads.frame_pool`).
+            :func:`monoavatar.core.threads.frame_pool`).
     """
 
     points: int = 1500
@@ -298,9 +280,9 @@ def _refine(body: BodyModel, obs: Observations, images: np.ndarray, track: posef
     camera = obs.camera
     with torch.no_grad():
         rest, joints = body.rest_shape(beta)
-    ctx = posefit._context(body, camera, pose_settings, apose_prior(body), rest[0], joints[0])
-    ids = posefit._subset_ids(body, settings.points, pose_settings.seed)
-    sub = replace(posefit._make_subset(body, rest[0], joints[0], ids), offsets=d[ids])
+    ctx = pe.energy_context(body, camera, pose_settings, apose_prior(body), rest[0], joints[0])
+    ids = pe.subset_ids(body, settings.points, pose_settings.seed)
+    sub = replace(pe.make_subset(body, rest[0], joints[0], ids), offsets=d[ids])
     point_ids = ids.numpy()
     faces = body.faces.numpy()
     uv, face_uv = body.uv.double().numpy(), body.face_uv.numpy()
@@ -317,14 +299,14 @@ def _refine(body: BodyModel, obs: Observations, images: np.ndarray, track: posef
             out = body(shape=beta, pose=pose_i, translation=trans_i, offsets=d)
         verts = out.vertices[0].double().numpy()
         frags = rasterize(verts, faces, camera)
-        flow = flow_to_frame(frags, verts, faces, uv, face_uv, tex, images[i], sh,
-                             DISFlow(settings.preset))  # fmt: skip
+        render = render_over_image(verts, faces, frags, uv, face_uv, tex, images[i], sh=sh)
+        flow = DISFlow(settings.preset).estimate(render, images[i])
         inside_px = inside_distance(frags)  # for both the flow's margin and the outline
         targets, valid = flow_correspondences(verts[point_ids], camera, frags, flow,
                                               obs.masks[i], settings, inside_px)  # fmt: skip
         frames = replace(
-            posefit._frames(obs, np.array([i]), pose_settings, dtype),
-            flow=posefit.Correspondences(torch.as_tensor(targets[None], dtype=dtype),
+            pe.frames_at(obs, np.array([i]), pose_settings, dtype),
+            flow=pe.Correspondences(torch.as_tensor(targets[None], dtype=dtype),
                                          torch.as_tensor(valid[None]), settings.weight,
                                          settings.sigma),  # fmt: skip
         )
@@ -335,7 +317,7 @@ def _refine(body: BodyModel, obs: Observations, images: np.ndarray, track: posef
                                                                   obs.masks[i], settings,
                                                                   inside_px),
                                           settings)  # fmt: skip
-        p_out, t_out, e_out = posefit._fit_window(
+        p_out, t_out, e_out = pe.fit_window(
             ctx, sub_i, frames, poses[i : i + 1], trans[i : i + 1], None, settings.iterations
         )
         return p_out[0], t_out[0], float(e_out[0])
@@ -356,15 +338,15 @@ def _refine(body: BodyModel, obs: Observations, images: np.ndarray, track: posef
 
 
 def _with_contour(
-    sub: posefit._Subset,
+    sub: pe.Subset,
     body: BodyModel,
     rest: Tensor,
     offsets: Tensor,
     point_ids: np.ndarray,
-    frames: posefit._Frames,
+    frames: pe.Frames,
     contour: tuple[np.ndarray, np.ndarray, np.ndarray],
     settings: FlowRefineSettings,
-) -> tuple[posefit._Subset, posefit._Frames]:
+) -> tuple[pe.Subset, pe.Frames]:
     """A subset whose model points are the flow points followed by the matched outline
     vertices, and the frame's terms on it: the flow targets on the first, the outline's
     edge targets (point-to-line) on the rest."""
@@ -385,6 +367,6 @@ def _with_contour(
     unit[0, n_flow:] = torch.as_tensor(normals, dtype=dtype)
     valid = torch.zeros(1, n, dtype=torch.bool)
     valid[0, n_flow:] = True
-    contour_terms = posefit.Correspondences(targets, valid, settings.contour_weight,
+    contour_terms = pe.Correspondences(targets, valid, settings.contour_weight,
                                             settings.contour_sigma, unit)  # fmt: skip
     return sub, replace(frames, flow=flow, contour=contour_terms)

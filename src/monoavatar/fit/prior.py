@@ -1,11 +1,11 @@
-"""The single-mode A-pose prior of Sec. B.3.2, learned from the rough A-poses that
-``monoavatar synth turnaround`` generates (the dissertation learns it from SMPL poses fitted to
-scans of people in A-pose).
+"""The single-mode A-pose prior of Sec. B.3.2, learned from the rough A-poses of the
+turn-around motion generator (:func:`monoavatar.body.motion.turnaround`, the one
+``monoavatar synth turnaround`` uses; the dissertation learns it from SMPL poses fitted to scans
+of people in A-pose).
 
 The generator's pose variation is small (a few degrees), so a Gaussian fitted to it alone would
 forbid the poses of real people; the covariance is widened by a floor (``min_std``) that stands
-for the spread of real A-poses. It is computed on the fly from fixed seeds: deterministic, no
-stored data.
+for the spread of real A-poses. It is computed from fixed seeds: deterministic, no stored data.
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ import torch
 from torch import Tensor
 
 from monoavatar.body import BodyModel
+from monoavatar.body.motion import turnaround
 
 
 @dataclass(frozen=True)
@@ -53,8 +54,6 @@ def apose_prior(
             standing in an A-pose hardly twist their trunk, and a free twist lets the trunk
             hide an error of the body's heading (the tracker then drifts).
     """
-    from monoavatar.synth.motion import turnaround  # light: numpy only
-
     rng = np.random.default_rng(seed)
     poses = np.concatenate([turnaround(body, frames, rng) for _ in range(sequences)])
     body_params = poses[:, 1:].reshape(len(poses), -1)

@@ -25,8 +25,8 @@ from scipy.spatial import cKDTree
 from torch import Tensor
 
 from monoavatar.body import BodyModel
-from monoavatar.camera import PinholeCamera
-from monoavatar.render.renders import vertex_normals
+from monoavatar.core.camera import PinholeCamera
+from monoavatar.core.geometry import vertex_normals
 
 
 @dataclass(frozen=True)

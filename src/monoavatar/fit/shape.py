@@ -10,11 +10,10 @@ fitted to all frames' rays at once:
 - ``E_data``: Geman-McClure robust distance between each ray's vertex and its canonical ray.
   ``data_term="line"`` is Eq. B.8, the point-to-line distance ``ρ(|v × n − m|)`` in Plücker
   coordinates; ``"plane"`` (default) measures only the component across the silhouette, the
-  distance to the plane through the line that contains the silhouette's tangent. The
+  distance to the plane through the line that contains the silhouette's tangent (the
   along-contour component of the line distance is set by which vertex happens to be nearest
-  to the ray (up to half a vertex spacing, ≈ 3 mm on Anny), not by the shape, and dropping it
-  lowered the error by 1–2 mm on synthetic turn-arounds. The term is normalised to the mean
-  over rays times V, so the weights do not depend on how many frames or rays are used.
+  to the ray, up to half a vertex spacing, not by the shape). The term is normalised to the
+  mean over rays times V, so the weights do not depend on how many frames or rays are used.
 - ``E_lp`` (Eq. B.9): ``Σ τ_i |L(v)_i − δ_i|²``, uniform Laplacian L, δ the Laplacian of the
   mesh at (re-)initialisation (so that offsets vary smoothly);
 - ``E_var`` (Eq. B.10): ``Σ τ_i |d_i − d_ref,i|²``: offsets stay small (``d_ref = 0``) or,
@@ -23,11 +22,9 @@ fitted to all frames' rays at once:
 - ``E_rigid`` (not in the dissertation): ``Σ_edges τ_ij |d_i − d_j|²`` over the face, hands
   and feet, whose silhouettes say little about their shape: they keep the body model's shape
   and move as a whole (e.g. a foot follows the sole's rays down a longer leg instead of being
-  stretched). The feet get a tenth of the face's and hands' weight, enough to keep them whole
-  but not to keep shoes out: with 0.2, a shoe's sole and heel, real displacement outside the
-  body model, stayed outside the avatar (bench, ground-truth poses, 0.2 → 0.02: surface error
-  2.15 → 1.94 mm on minimal-s7, 2.83 → 2.67 on clothed-skirt-s35, held-out texture PSNR
-  +0.6 to +1.8 dB on four subjects; 0.01 and no feet term at all were worse on the skirt).
+  stretched). By default (``rigid_regions``) the feet get a fiftieth of the face's and hands'
+  weight: enough to keep them whole, not enough to keep a shoe (real displacement outside the
+  body model) out of the avatar.
 
 Vertices are ``v = T(β) + D``: the body model's rest shape for shape parameters β plus
 per-vertex offsets D (SMPL+D, Eq. B.3). The optimisation alternates (B.6.1): correspondence
@@ -57,7 +54,10 @@ import torch
 from torch import Tensor
 
 from monoavatar.body import REGIONS, BodyModel, lbs
-from monoavatar.camera import PinholeCamera
+from monoavatar.core.camera import PinholeCamera
+from monoavatar.core.errors import MonoavatarError
+from monoavatar.core.geometry import vertex_normals
+from monoavatar.core.threads import torch_threads
 from monoavatar.fit.energies import geman_mcclure
 from monoavatar.fit.laplacian import edge_laplacian, symmetry_operators, uniform_laplacian
 from monoavatar.fit.rays import (
@@ -66,8 +66,6 @@ from monoavatar.fit.rays import (
     silhouette_boundary,
     silhouette_correspondences,
 )
-from monoavatar.fit.threads import torch_threads
-from monoavatar.render.renders import vertex_normals
 
 __all__ = [
     "CanonicalShape",
@@ -80,7 +78,7 @@ __all__ = [
 ]
 
 
-class ShapeFitError(ValueError):
+class ShapeFitError(MonoavatarError, ValueError):
     """Invalid input to the consensus-shape fit (shapes, sizes, settings)."""
 
 
@@ -118,11 +116,9 @@ class ShapeSettings:
             person's depth (converted to pixels per frame).
         contour_cos: |cos| between normal and line of sight below which a vertex counts as on
             the contour. A vertex up to asin(contour_cos) before the contour generator lies
-            inside the outline, and pulled onto a silhouette ray it pushes the outline out:
-            with 0.3 the avatar's outline lay 0.23–0.28 px outside the truth's (ground-truth
-            poses, exact masks). 3 bench subjects, 30 key-frames: surface error 2.55, 2.44,
-            2.32 and 2.40 mm with 0.3, 0.2, 0.15 and 0.1 (fewer candidates, matched farther
-            along the outline); held-out PSNR 22.80, 22.77, 22.77 and 22.59 dB.
+            inside the outline, so pulled onto a silhouette ray it pushes the outline out; a
+            smaller value leaves fewer candidates, so samples are matched farther along the
+            outline.
         normal_weight: pixels per unit of normal difference in the matching.
         min_normal_dot: minimum cosine between matched image normals.
         blur: Gaussian sigma (pixels) for the boundary normals and sub-pixel edges.
@@ -132,8 +128,7 @@ class ShapeSettings:
         chunk: frames posed at once in the correspondence search.
         threads: torch intra-op threads during the fit (restored afterwards); None leaves
             them. The fit is many small tensor operations, for which threads cost more than
-            they save: 7–9 s with 1 thread against 34–42 s with 2 for 120 frames on a shared
-            2-core machine.
+            they save.
     """
 
     rounds: int = 7
@@ -503,10 +498,10 @@ def _normal_basis(normals: np.ndarray) -> sp.csr_matrix:
 
 
 def _solve(M: sp.csr_matrix, rhs: np.ndarray, x0: np.ndarray, rtol: float = 1e-4) -> np.ndarray:
-    """Solve the SPD system M x = rhs by Jacobi-preconditioned conjugate gradients from x0.
+    """Solve the SPD system M x = rhs by Jacobi-preconditioned conjugate gradients from x0
+    (the previous offsets: warm-started, CG is much cheaper than a sparse direct solve).
 
-    Warm-started from the previous offsets, a few hundred iterations (≈ 0.3 s for V = 13,718)
-    reach 0.01 mm; a sparse direct solve of the same system takes seconds."""
+    Stops at relative residual ``rtol`` or after 2000 iterations."""
     diag = M.diagonal()
     inv = np.divide(1.0, diag, out=np.ones_like(diag), where=diag > 0)
     pre = spla.LinearOperator(M.shape, matvec=lambda v: inv * v, dtype=np.float64)

@@ -8,18 +8,9 @@ render to the frame, the outline, and the pose energy on the frame's own percept
 avatar (shape, offsets, texture, lighting) stays as it is; only the poses move. This is
 Paper A's analysis-by-synthesis tracking with the reconstructed avatar as the template.
 
-The bench measures the texture in held-out poses with it (:mod:`monoavatar.bench.metrics`):
+The bench measures the texture in held-out poses with it (:mod:`monoavatar.bench.heldout`):
 the frames of the video that were not key-frames, posed by this tracker (only the poses are
-fitted to those frames; the avatar never sees them). Whole suite (9 subjects, 30 key-frames,
-20 held-out frames each, estimated poses): held-out texture PSNR on the person mask 25.2 dB
-with the interpolated poses alone, 25.6 dB after 3 rounds (better on all 9 subjects, by
-0.2-0.6 dB), held-out PA-MPJPE 23.9 -> 23.3 mm and median root error 6.4° -> 5.4° against the
-true poses, 15.7-17.4 s per subject for the 20 frames with mediapipe perception, on 2 cores; on
-3 of them after 0, 1, 2 and 3 rounds: minimal-s3 24.84, 25.16, 25.33, 25.47 dB;
-clothed-tight-s24 24.38, 24.57, 24.76, 24.85 dB; clothed-loose-s27 26.04, 26.17, 26.23,
-26.24 dB. Re-fitting the interpolated poses by the pose energy alone first (keypoints and
-silhouettes, no texture) lost 3.5 dB on minimal-s3 (21.36 dB): interpolation between
-key-frames 2 frames apart is closer than what the keypoints of one frame say. The
+fitted to those frames; the avatar never sees them). The
 interpolation takes the shorter way round, so key-frames must lie less than a half turn
 apart for any joint (a turn-around in 120 frames with 30 key-frames: 12°).
 """

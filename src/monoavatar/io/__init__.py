@@ -1,11 +1,12 @@
-"""Reading inputs: videos, image folders, single images, camera intrinsics, and precomputed
-perception from People-Snapshot folders and OpenPose JSON.
+"""Reading inputs: videos, image folders, single images and camera intrinsics; writing meshes,
+glTF avatars and the avatar folder. Data sets with their own perception are read by
+:mod:`monoavatar.datasets`.
 
 Entry point: :func:`read_frames` (any frame source → :class:`Frames`), then
 :func:`resolve_camera` for the intrinsics.
 """
 
-from monoavatar.io.errors import (
+from monoavatar.core.errors import (
     CorruptFrameError,
     CorruptFrameWarning,
     EmptyVideoError,
@@ -24,14 +25,7 @@ from monoavatar.io.intrinsics import (
     default_focal,
     resolve_camera,
 )
-from monoavatar.io.openpose import read_openpose_folder
-from monoavatar.io.people_snapshot import (
-    PeopleSnapshot,
-    is_people_snapshot,
-    read_people_snapshot,
-)
 from monoavatar.io.reader import read_frames
-from monoavatar.io.safe_pickle import safe_load
 from monoavatar.io.video import count_video_frames, read_video
 
 __all__ = [
@@ -46,19 +40,14 @@ __all__ = [
     "InputNotFoundError",
     "InputWarning",
     "NotAVideoError",
-    "PeopleSnapshot",
     "UnsafePickleError",
     "count_video_frames",
     "default_camera",
     "default_focal",
-    "is_people_snapshot",
     "load_image",
     "read_frames",
     "read_image",
     "read_image_folder",
-    "read_openpose_folder",
-    "read_people_snapshot",
     "read_video",
     "resolve_camera",
-    "safe_load",
 ]

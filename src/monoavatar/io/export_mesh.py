@@ -1,33 +1,17 @@
-"""Mesh files: Wavefront OBJ with separately indexed UVs (+ MTL + texture PNG), binary PLY,
-and an MP4 writer. Every writer writes to a temporary name and renames, so a failure leaves
-no half-written file."""
+"""Mesh files: Wavefront OBJ with separately indexed UVs (+ MTL + texture PNG) and its reader,
+binary PLY, and an MP4 writer. Every writer writes to a temporary name and renames, so a
+failure leaves no half-written file."""
 
 from __future__ import annotations
 
-import os
-import tempfile
-from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 from PIL import Image
 
-
-@contextmanager
-def atomic_path(path: str | Path) -> Iterator[Path]:
-    """Yield a temporary path beside ``path``; rename it to ``path`` if the block succeeds."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=path.suffix)
-    os.close(fd)
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; give the usual permissions of a new file
-    try:
-        yield Path(tmp)
-        os.replace(tmp, path)
-    finally:
-        Path(tmp).unlink(missing_ok=True)
+from monoavatar.core.errors import InputFormatError, InputNotFoundError
+from monoavatar.core.files import atomic_path
 
 
 def texture_to_uint8(texture: np.ndarray) -> np.ndarray:
@@ -105,3 +89,31 @@ def write_mp4(path: str | Path, frames: Sequence[np.ndarray], fps: float = 30.0)
                     container.mux(packet)
             for packet in stream.encode():
                 container.mux(packet)
+
+
+def read_obj(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices (V, 3) float64 and triangles (F, 3) int64 of an OBJ file.
+
+    Only ``v`` and ``f`` records are read (texture coordinates and normals are ignored, so no
+    vertex is duplicated at a UV seam); polygons are split into fans; indices may be negative
+    (relative), as the format allows.
+    """
+    path = Path(path)
+    vertices: list[list[float]] = []
+    faces: list[list[int]] = []
+    if not path.is_file():
+        raise InputNotFoundError(path, "no such mesh file")
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputFormatError(path, f"cannot read ({exc})") from exc
+    for line in text.splitlines():
+        if line.startswith("v "):
+            vertices.append([float(x) for x in line.split()[1:4]])
+        elif line.startswith("f "):
+            idx = [int(tok.split("/")[0]) for tok in line.split()[1:]]
+            idx = [i - 1 if i > 0 else len(vertices) + i for i in idx]
+            faces.extend([idx[0], idx[k], idx[k + 1]] for k in range(1, len(idx) - 1))
+    if not vertices or not faces:
+        raise InputFormatError(path, "no vertices or no faces")
+    return np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64)

@@ -37,7 +37,9 @@ from scipy.spatial.transform import Rotation
 
 from monoavatar import __version__
 from monoavatar.body.model import BodyModel
-from monoavatar.io.export_mesh import atomic_path, texture_to_uint8
+from monoavatar.core.errors import MonoavatarError
+from monoavatar.core.files import atomic_path
+from monoavatar.io.export_mesh import texture_to_uint8
 
 __all__ = [
     "MAX_INFLUENCES",
@@ -63,7 +65,7 @@ _LINEAR_MIPMAP_LINEAR = 9987
 _CLAMP_TO_EDGE = 33071
 
 
-class GltfExportError(ValueError):
+class GltfExportError(MonoavatarError, ValueError):
     """Inconsistent input to a glTF writer (shapes, skeleton, animation)."""
 
 
@@ -301,7 +303,7 @@ def _float32_weights(weights: np.ndarray) -> np.ndarray:
 
 
 def _vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    from monoavatar.render.renders import vertex_normals
+    from monoavatar.core.geometry import vertex_normals
 
     n = vertex_normals(vertices, faces).numpy()
     bad = np.linalg.norm(n, axis=1) < 0.5

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageOps, UnidentifiedImageError
 
-from monoavatar.io.errors import (
+from monoavatar.core.errors import (
     CorruptFrameError,
     CorruptFrameWarning,
     EmptyVideoError,

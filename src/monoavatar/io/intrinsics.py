@@ -30,7 +30,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from monoavatar.camera import CameraError, PinholeCamera
+from monoavatar.core.camera import CameraError, PinholeCamera
 
 DEFAULT_DIAGONAL_FOV_DEG = 68.0
 """Assumed diagonal field of view of an uncalibrated video, degrees (see the module docstring)."""

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from monoavatar.io.errors import InputNotFoundError
+from monoavatar.core.errors import InputNotFoundError
 from monoavatar.io.frames import Frames, FrameSelection
 from monoavatar.io.images import IMAGE_EXTENSIONS, read_image, read_image_folder
 from monoavatar.io.video import OnCorrupt, read_video

@@ -20,7 +20,7 @@ from typing import Any, Literal
 import av
 import numpy as np
 
-from monoavatar.io.errors import (
+from monoavatar.core.errors import (
     CorruptFrameError,
     CorruptFrameWarning,
     EmptyVideoError,

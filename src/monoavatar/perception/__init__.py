@@ -6,6 +6,7 @@ Entry points: :func:`perceive` (frames → :class:`Observations`, cached on disk
 :mod:`monoavatar.perception.mediapipe_backend`.
 """
 
+from monoavatar.core.landmarks import MEDIAPIPE_LANDMARKS
 from monoavatar.perception.errors import (
     MultiplePeopleWarning,
     NoPersonError,
@@ -20,7 +21,6 @@ from monoavatar.perception.interfaces import (
     PoseDetector,
     PoseResult,
 )
-from monoavatar.perception.landmarks import MEDIAPIPE_POSE_LANDMARKS
 from monoavatar.perception.observations import Observations, PrecomputedPerception
 from monoavatar.perception.pipeline import (
     Detectors,
@@ -32,7 +32,7 @@ from monoavatar.perception.pipeline import (
 )
 
 __all__ = [
-    "MEDIAPIPE_POSE_LANDMARKS",
+    "MEDIAPIPE_LANDMARKS",
     "DISFlow",
     "DeepFlow",
     "Detectors",

@@ -13,9 +13,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from monoavatar.core.landmarks import (
+    COCO17_IN_MEDIAPIPE,
+    MEDIAPIPE_LANDMARKS,
+    MEDIAPIPE_MIRROR,
+    NUM_BODY_LANDMARKS,
+)
 from monoavatar.eval.image import silhouette_iou
-from monoavatar.landmarks import COCO17_IN_MEDIAPIPE, MEDIAPIPE_LANDMARKS, MEDIAPIPE_MIRROR
-from monoavatar.perception.landmarks import NUM_BODY_LANDMARKS
 from monoavatar.perception.observations import Observations
 
 #: Left/right pairs checked for swaps, by body part (mediapipe indices of the *left* landmark).

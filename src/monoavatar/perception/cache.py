@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from monoavatar.perception.observations import atomic_write_bytes
+from monoavatar.core.files import atomic_write_bytes
 
 CACHE_ENV = "MONOAVATAR_CACHE"
 _CACHE_VERSION = "perception-v1"

@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-from monoavatar.io.errors import format_indices
+from monoavatar.core.errors import MonoavatarError, format_indices
 
 
-class PerceptionError(RuntimeError):
+class PerceptionError(MonoavatarError, RuntimeError):
     """Perception cannot give a usable result for this input."""
 
 

@@ -3,9 +3,8 @@
 Flow convention: ``flow[row, col] = (dx, dy)`` in pixels, forward: the content at pixel centre
 p = (col + 0.5, row + 0.5) of the first image is at p + (dx, dy) in the second.
 
-Speed and accuracy on 540×540 frames, 2 CPU cores (``benchmarks/bench_perception.py``): DIS
-"medium" ≈ 30 ms per pair (median error ≈ 0.05 px on a translated texture), DeepFlow ≈ 0.9 s
-(≈ 0.005 px).
+DIS (the default) is fast; DeepFlow is much slower and more accurate
+(``benchmarks/bench_perception.py`` measures both).
 """
 
 from __future__ import annotations

@@ -12,8 +12,8 @@ from typing import Any
 
 import numpy as np
 
+from monoavatar.core.landmarks import NUM_BODY_LANDMARKS, NUM_FACE_LANDMARKS
 from monoavatar.perception.interfaces import PoseResult
-from monoavatar.perception.landmarks import NUM_BODY_LANDMARKS, NUM_FACE_LANDMARKS
 
 
 def check_image(image: np.ndarray) -> np.ndarray:
@@ -29,7 +29,7 @@ def check_image(image: np.ndarray) -> np.ndarray:
 
 
 def _mediapipe() -> Any:
-    import mediapipe  # slow import (≈1 s): only when a mediapipe detector is made
+    import mediapipe  # slow import: only when a mediapipe detector is made
 
     return mediapipe
 

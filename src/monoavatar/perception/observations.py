@@ -11,17 +11,16 @@ from __future__ import annotations
 import hashlib
 import io
 import json
-import os
 import pickle
-import tempfile
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from monoavatar.camera import PinholeCamera
-from monoavatar.perception.landmarks import NUM_BODY_LANDMARKS, NUM_FACE_LANDMARKS
+from monoavatar.core.camera import PinholeCamera
+from monoavatar.core.files import atomic_write_bytes
+from monoavatar.core.landmarks import NUM_BODY_LANDMARKS, NUM_FACE_LANDMARKS
 
 _FORMAT_VERSION = 1
 
@@ -33,7 +32,7 @@ class Observations:
     Attributes:
         masks: (N, H, W) bool, True on the person.
         keypoints: (N, 33, 3) float32 body landmarks in mediapipe's order
-            (:data:`~monoavatar.perception.landmarks.MEDIAPIPE_POSE_LANDMARKS`): x px, y px,
+            (:data:`~monoavatar.core.landmarks.MEDIAPIPE_LANDMARKS`): x px, y px,
             confidence (mediapipe's visibility, or OpenPose's confidence).
         face: (N, 468, 3) float32 face-mesh landmarks: x px, y px, confidence; rows are NaN
             where the landmark is absent (no face found, or a vertex a converted format lacks).
@@ -184,22 +183,6 @@ class Observations:
                 )
             except (KeyError, OSError, EOFError, zipfile.BadZipFile) as exc:
                 raise ValueError(f"{path}: not an observations file ({exc})") from exc
-
-
-def atomic_write_bytes(path: Path, payload: bytes) -> None:
-    """Write ``payload`` to ``path`` so that readers see either the old file or the whole new one:
-    write a temporary file in the same folder, flush it to disk, then rename it over ``path``."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(payload)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 @dataclass(frozen=True)

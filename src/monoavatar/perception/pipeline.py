@@ -24,8 +24,9 @@ from typing import Literal
 import cv2
 import numpy as np
 
-from monoavatar.camera import PinholeCamera
-from monoavatar.io.errors import format_indices
+from monoavatar.core.camera import PinholeCamera
+from monoavatar.core.errors import format_indices
+from monoavatar.core.landmarks import NUM_BODY_LANDMARKS, NUM_FACE_LANDMARKS
 from monoavatar.io.frames import Frames
 from monoavatar.io.intrinsics import default_camera
 from monoavatar.perception import cache as cache_mod
@@ -43,7 +44,6 @@ from monoavatar.perception.interfaces import (
     PoseDetector,
     PoseResult,
 )
-from monoavatar.perception.landmarks import NUM_BODY_LANDMARKS, NUM_FACE_LANDMARKS
 from monoavatar.perception.masks import (
     fill_holes,
     grabcut_refine,
@@ -72,21 +72,12 @@ class PerceptionSettings:
             than this between them (:func:`~monoavatar.perception.masks.landmark_motion`: 90th
             percentile of the body landmarks' displacement over their vertical extent); frames
             whose motion is unknown (no landmarks) are not mixed; ``inf`` mixes all. Smoothing
-            across real motion cuts off moving limbs: ungated, it lowered the mask IoU of a
-            synthetic 6-frame turn-around (60° per frame, motion ≈ 0.25) from 0.98 to 0.82;
-            gated, the 120-frame turn-arounds (3° per frame, motion ≈ 0.015) keep its small gain
-            (IoU +0.003) (``benchmarks/perception_accuracy.py``).
+            across real motion would cut off moving limbs.
         max_hole_fraction: holes up to this fraction of the person's area are filled.
-        grabcut: refine the mask boundary with GrabCut's colour models (about 0.06 s per
-            540² frame). Mediapipe's mask comes from a low-resolution network and reaches a
-            pixel or two past the outline; on the bench suite's 9 turn-arounds (30 key-frames
-            each, low noise) the mask IoU rose from 0.969 to 0.992 with a 4 px band (the same with
-            8 px), and the whole suite's surface error (estimated poses) fell from 3.24 to
-            3.11 mm. Heavy blur and noise leave GrabCut less to go by: on 30-frame scenes with
-            plain, gradient and clutter backgrounds, the 4 px band gained 0.8 to 1.3 IoU points
-            at the ``medium`` noise level and changed -0.7 to +0.1 points at ``high`` (an 8 px
-            band: -1.0 to -0.3), hence the narrow default band.
-        grabcut_band_px: width in pixels of the boundary band GrabCut may change.
+        grabcut: refine the mask boundary with GrabCut's colour models (mediapipe's mask comes
+            from a low-resolution network and can reach past the outline).
+        grabcut_band_px: width in pixels of the boundary band GrabCut may change (narrow:
+            in blurred, noisy frames GrabCut's colour models have less to go by).
         min_mask_fraction: a mask smaller than this fraction of the image means no person.
         other_person_fraction: another person counts (and is warned about) when at least
             this fraction of the subject's area: a mask component, or a person found by
@@ -97,11 +88,8 @@ class PerceptionSettings:
             only that one, so without this search a second person goes unnoticed (unless the
             ``"selfie"`` segmenter or precomputed OpenPose input shows them). It costs little
             where there is one person (the second search usually stops at the person
-            detector): ``perceive()`` took 70 ms per 540² frame with it on an idle machine
-            (``benchmarks/bench_perception.py``); in a side-by-side run on 30 frames of a
-            turn-around, 63-67 ms with it and 47-67 ms without. The pose model may "find" a
-            person in leftover clutter once the real one is hidden (a helmet in the astronaut
-            photo); such finds are small, and a find counts only when it covers
+            detector). The pose model may "find" a person in leftover clutter once the real
+            one is hidden; such finds are small, and a find counts only when it covers
             ``other_person_fraction`` of the subject's area.
         face: detect face-mesh landmarks.
         flow: optical flow between consecutive frames: ``"dis"``, ``"deepflow"`` or None.

@@ -4,7 +4,7 @@ Deferred, OpenDR-style: :func:`rasterize` fixes visibility in :class:`Fragments`
 perspective-correct barycentrics, depth); :func:`interpolate` and the ``render_*`` functions
 compute per-pixel values from them, differentiably in the attribute values.
 
-Conventions: OpenCV pinhole cameras (:class:`monoavatar.camera.PinholeCamera`), pixel centres
+Conventions: OpenCV pinhole cameras (:class:`monoavatar.core.camera.PinholeCamera`), pixel centres
 at (col + 0.5, row + 0.5), metres, glTF UVs ((0, 0) = top-left of the texture, v down).
 """
 
@@ -14,6 +14,7 @@ from monoavatar.render.renders import (
     render_depth,
     render_face_labels,
     render_normals,
+    render_over_image,
     render_silhouette,
     render_textured,
     render_uv,
@@ -43,6 +44,7 @@ __all__ = [
     "render_depth",
     "render_face_labels",
     "render_normals",
+    "render_over_image",
     "render_silhouette",
     "render_textured",
     "render_uv",

@@ -1,6 +1,6 @@
 """Triangle rasterisation on the CPU: face ids, perspective-correct barycentrics, depth.
 
-Conventions (DESIGN.md, :mod:`monoavatar.camera`):
+Conventions (:mod:`monoavatar.core.camera`):
 
 - OpenCV camera: x right, y down, z forward; ``x_cam = R @ x_world + t``; metres.
 - Pixel coordinates have their origin at the top-left *corner* of the top-left pixel; a pixel
@@ -32,7 +32,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from monoavatar.camera import PinholeCamera
+from monoavatar.core.camera import PinholeCamera
 
 __all__ = ["Fragments", "RasterSettings", "rasterize"]
 

@@ -18,7 +18,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from monoavatar.camera import PinholeCamera
+from monoavatar.core.camera import PinholeCamera
+from monoavatar.core.geometry import face_indices, float_tensor, vertex_normals, writable
 from monoavatar.render.interpolate import interpolate, interpolate_masked, scatter_masked
 from monoavatar.render.raster import Fragments
 from monoavatar.render.shading import sh_shading
@@ -27,6 +28,7 @@ __all__ = [
     "render_depth",
     "render_face_labels",
     "render_normals",
+    "render_over_image",
     "render_silhouette",
     "render_textured",
     "render_uv",
@@ -34,37 +36,6 @@ __all__ = [
     "sample_texture",
     "vertex_normals",
 ]
-
-
-def _writable(x: object) -> object:
-    """``x``, copied when it is a read-only NumPy array (a broadcast view, say), which torch
-    would otherwise share with a warning."""
-    if isinstance(x, np.ndarray) and not x.flags.writeable:
-        return np.array(x)
-    return x
-
-
-def _float_tensor(x: Tensor | np.ndarray, name: str, last: int | None = None) -> Tensor:
-    t = x if isinstance(x, Tensor) else torch.as_tensor(_writable(np.asarray(x, np.float64)))
-    if not t.is_floating_point():
-        raise ValueError(f"{name} must be floating point, got dtype {t.dtype}")
-    if last is not None and (t.ndim != 2 or t.shape[1] != last):
-        raise ValueError(f"{name} must have shape (N, {last}), got {tuple(t.shape)}")
-    return t
-
-
-def _faces(faces: Tensor | np.ndarray, num_vertices: int) -> Tensor:
-    f = torch.as_tensor(faces)
-    if f.is_floating_point() or f.dtype == torch.bool:
-        raise ValueError(f"faces must be integers, got dtype {f.dtype}")
-    if f.ndim != 2 or f.shape[1] != 3:
-        raise ValueError(f"faces must have shape (F, 3), got {tuple(f.shape)}")
-    f = f.to(dtype=torch.int64)
-    if f.numel() and (int(f.min()) < 0 or int(f.max()) >= num_vertices):
-        raise ValueError(
-            f"faces index [{int(f.min())}, {int(f.max())}] but there are {num_vertices} vertices"
-        )
-    return f
 
 
 def render_silhouette(fragments: Fragments) -> Tensor:
@@ -79,31 +50,6 @@ def render_depth(fragments: Fragments, background: float = 0.0) -> Tensor:
         fragments.depth,
         torch.tensor(background, dtype=fragments.depth.dtype),
     )
-
-
-def vertex_normals(vertices: Tensor | np.ndarray, faces: Tensor | np.ndarray) -> Tensor:
-    """Area-weighted unit vertex normals.
-
-    Each face adds its unnormalised normal ``(v1 - v0) x (v2 - v0)`` (length = twice its area,
-    orientation by the right-hand rule on the corner order) to its three corners; the sums are
-    normalised. Vertices used by no face, or whose faces cancel, get the zero vector.
-
-    Args:
-        vertices: (..., V, 3) positions (any units), optionally batched.
-        faces: (F, 3) integer vertex indices.
-    Returns:
-        (..., V, 3) unit normals, dtype of ``vertices`` (float64 for arrays); differentiable.
-    """
-    v = _float_tensor(vertices, "vertices")
-    if v.ndim < 2 or v.shape[-1] != 3:
-        raise ValueError(f"vertices must have shape (..., V, 3), got {tuple(v.shape)}")
-    f = _faces(faces, v.shape[-2]).to(v.device)
-    v0, v1, v2 = v[..., f[:, 0], :], v[..., f[:, 1], :], v[..., f[:, 2], :]
-    face_n = torch.cross(v1 - v0, v2 - v0, dim=-1)
-    acc = torch.zeros_like(v)
-    for k in range(3):
-        acc = acc.index_add(-2, f[:, k], face_n)
-    return F.normalize(acc, dim=-1)
 
 
 def render_normals(
@@ -184,7 +130,7 @@ def render_vertex_labels(
         raise ValueError(
             f"vertex_labels must be a 1-D integer array, got {labels.dtype} {tuple(labels.shape)}"
         )
-    f = _faces(faces, labels.shape[0])
+    f = face_indices(faces, labels.shape[0])
     face_id = fragments.face_id
     if face_id.numel() and int(face_id.max()) >= f.shape[0]:
         raise ValueError(f"fragments refer to face {int(face_id.max())} but F={f.shape[0]}")
@@ -213,8 +159,8 @@ def render_uv(
     Returns:
         (H, W, 2) UVs, dtype of ``uv``; differentiable in ``uv``.
     """
-    uv_t = _float_tensor(uv, "uv", 2)
-    idx = _faces(face_uv_idx, uv_t.shape[0]).to(uv_t.device)
+    uv_t = float_tensor(uv, "uv", 2)
+    idx = face_indices(face_uv_idx, uv_t.shape[0]).to(uv_t.device)
     return interpolate(uv_t[idx], idx, fragments, fill=background)
 
 
@@ -228,7 +174,7 @@ def sample_texture(texture: Tensor | np.ndarray, uv: Tensor) -> Tensor:
     Returns:
         (..., C) samples in the texture's dtype; differentiable in ``texture`` and ``uv``.
     """
-    tex = _float_tensor(texture, "texture")
+    tex = float_tensor(texture, "texture")
     if tex.ndim != 3:
         raise ValueError(f"texture must have shape (H_t, W_t, C), got {tuple(tex.shape)}")
     if uv.shape[-1:] != (2,):
@@ -269,7 +215,7 @@ def render_textured(
         (H, W, 3) image in the texture's dtype; differentiable in vertices (through normals),
         uv, texture, sh and background.
     """
-    tex = _float_tensor(texture, "texture")
+    tex = float_tensor(texture, "texture")
     if tex.ndim != 3 or tex.shape[2] != 3:
         raise ValueError(f"texture must have shape (H_t, W_t, 3), got {tuple(tex.shape)}")
     height, width = fragments.height, fragments.width
@@ -278,13 +224,32 @@ def render_textured(
         raise ValueError(
             f"background must be a scalar, (3,) or ({height}, {width}, 3), got {tuple(bg.shape)}"
         )
-    uv_t = _float_tensor(uv, "uv", 2)
-    uv_idx = _faces(face_uv_idx, uv_t.shape[0]).to(uv_t.device)
+    uv_t = float_tensor(uv, "uv", 2)
+    uv_idx = face_indices(face_uv_idx, uv_t.shape[0]).to(uv_t.device)
     colour = sample_texture(tex, interpolate_masked(uv_t[uv_idx], uv_idx, fragments))  # (N, 3)
     if sh is not None:
         normals = _masked_normals(vertices, faces, fragments, None).to(tex.dtype)
-        sh_t = torch.as_tensor(_writable(sh), dtype=tex.dtype, device=tex.device)
+        sh_t = torch.as_tensor(writable(sh), dtype=tex.dtype, device=tex.device)
         colour = colour * sh_shading(normals, sh_t).clamp_min(0.0)
     image = bg.expand(height, width, 3).clone()  # never write into the caller's background
     image[fragments.face_id >= 0] = colour
     return image
+
+
+def render_over_image(
+    vertices: Tensor | np.ndarray,
+    faces: Tensor | np.ndarray,
+    fragments: Fragments,
+    uv: Tensor | np.ndarray,
+    face_uv_idx: Tensor | np.ndarray,
+    texture: Tensor | np.ndarray,
+    image: np.ndarray,
+    sh: Tensor | np.ndarray | None = None,
+) -> np.ndarray:
+    """The textured (and, with ``sh``, shaded) mesh drawn over ``image`` (H, W, 3) uint8, as
+    (H, W, 3) uint8: the picture an optical flow to the frame starts from (analysis by
+    synthesis, Paper A)."""
+    background = image.astype(np.float64) / 255.0
+    render = render_textured(vertices, faces, fragments, uv, face_uv_idx, texture, sh=sh,
+                             background=background)  # fmt: skip
+    return (np.clip(render.numpy(), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)

@@ -34,10 +34,11 @@ from PIL import Image
 from tqdm import tqdm
 
 from monoavatar.body import MEDIAPIPE_LANDMARKS, BodyModel, lbs, load_body_model
-from monoavatar.camera import PinholeCamera
+from monoavatar.body.motion import free_motion, standing_pose, turnaround
+from monoavatar.core.camera import PinholeCamera
+from monoavatar.core.errors import MonoavatarError
 from monoavatar.io.export_mesh import write_mp4, write_obj, write_ply
 from monoavatar.render import rasterize, render_textured, sample_sh_lighting
-from monoavatar.synth.motion import free_motion, standing_pose, turnaround
 from monoavatar.synth.options import BACKGROUNDS, CLOTHING, KINDS, NOISE_LEVELS
 from monoavatar.synth.subjects import Subject, build_subject, sample_subject
 
@@ -45,7 +46,7 @@ _LEFT_HIP = MEDIAPIPE_LANDMARKS.index("left_hip")
 _RIGHT_HIP = MEDIAPIPE_LANDMARKS.index("right_hip")
 
 
-class SynthError(ValueError):
+class SynthError(MonoavatarError, ValueError):
     """Invalid synthesis settings or output folder."""
 
 
@@ -178,11 +179,9 @@ def render_frame(
     rows = np.clip(np.floor(px_np[:, 1]).astype(int), 0, camera.height - 1)
     inside = (px_np[:, 0] >= 0) & (px_np[:, 0] < camera.width)
     inside &= (px_np[:, 1] >= 0) & (px_np[:, 1] < camera.height)
-    # visible: in the image and no more than 8 cm behind the visible surface (landmarks such
-    # as elbows lie inside the limb; one occluded by the torso lies 15+ cm behind it). The hip
-    # joints lie deeper, 10-14 cm inside the pelvis (more under clothing), yet detectors see
-    # them from the front and the back: 16 cm for them; the far hip of a side view lies a
-    # pelvis width (25+ cm) behind the near one and stays hidden.
+    # visible: in the image and no more than ``depth_limit`` metres behind the visible
+    # surface (landmarks such as elbows lie inside the limb); the hip joints, deeper inside
+    # the pelvis yet seen by detectors from the front and the back, get a larger limit
     depth_limit = np.full(len(depth_np), 0.08)
     depth_limit[[_LEFT_HIP, _RIGHT_HIP]] = 0.16
     visible = inside & (depth_np - zbuf[rows, cols] < depth_limit)

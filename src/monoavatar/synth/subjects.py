@@ -16,7 +16,7 @@ from torch import Tensor
 
 from monoavatar.body import REGIONS, BodyModel
 from monoavatar.body.subdivide import Subdivision, subdivide
-from monoavatar.camera import PinholeCamera
+from monoavatar.core.camera import PinholeCamera
 from monoavatar.render import rasterize, vertex_normals
 from monoavatar.synth.options import CLOTHING
 

@@ -12,7 +12,6 @@ from monoavatar.texture.backproject import (
     TextureSettings,
     UVTexture,
     build_texture,
-    flow_to_frame,
     sampling_size,
 )
 from monoavatar.texture.fill import dilate_texture, harmonic_fill
@@ -27,7 +26,6 @@ __all__ = [
     "build_texture",
     "dilate_texture",
     "estimate_sh",
-    "flow_to_frame",
     "fit_sh",
     "harmonic_fill",
     "sampling_size",

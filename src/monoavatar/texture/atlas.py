@@ -20,13 +20,14 @@ import numpy as np
 import scipy.sparse as sp
 from torch import Tensor
 
-from monoavatar.camera import PinholeCamera
+from monoavatar.core.camera import PinholeCamera
+from monoavatar.core.errors import MonoavatarError
 from monoavatar.render import rasterize
 
 __all__ = ["TexelAtlas", "TextureError", "build_atlas", "seam_edges", "texel_graph"]
 
 
-class TextureError(ValueError):
+class TextureError(MonoavatarError, ValueError):
     """Invalid input to a texture-stage function (shapes, dtypes, sizes)."""
 
 

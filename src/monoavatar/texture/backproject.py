@@ -23,13 +23,7 @@ the median of the most orthogonal texels from all views." Here per texel rather 
    frame, and steps 2-5 run again sampling there. The views then agree with each other (not
    necessarily with a surface they cannot see); flow longer than ``max_flow`` is ignored.
 
-Measured on the bench suite's nine subjects, re-texturing the same fitted avatars (30
-key-frames, estimated poses; the bench's held-out texture PSNR): ``top_k`` 5 → 9 and one
-registration round gave 22.28 → 22.46 dB on the person mask and 24.56 → 24.85 dB where avatar
-and person overlap, every subject better; on three of them ``top_k`` 9 alone gave about three
-quarters of that. One round costs about 1.6 s per 30 key-frames of 540 x 540.
-
-Conventions: OpenCV cameras (:class:`monoavatar.camera.PinholeCamera`), pixel centres at
+Conventions: OpenCV cameras (:class:`monoavatar.core.camera.PinholeCamera`), pixel centres at
 ``(col + 0.5, row + 0.5)``, metres; glTF UVs; colours linear in [0, 1] (frames as uint8).
 """
 
@@ -44,10 +38,16 @@ import torch
 from torch import Tensor
 from tqdm import tqdm
 
-from monoavatar.camera import PinholeCamera
-from monoavatar.fit.threads import frame_pool
+from monoavatar.core.camera import PinholeCamera
+from monoavatar.core.threads import frame_pool
 from monoavatar.perception.flow import DISFlow
-from monoavatar.render import Fragments, rasterize, render_textured, sh_shading, vertex_normals
+from monoavatar.render import (
+    Fragments,
+    rasterize,
+    render_over_image,
+    sh_shading,
+    vertex_normals,
+)
 from monoavatar.texture.atlas import (
     TexelAtlas,
     TextureError,
@@ -58,7 +58,7 @@ from monoavatar.texture.atlas import (
 )
 from monoavatar.texture.fill import dilate_texture, harmonic_fill
 
-__all__ = ["TextureSettings", "UVTexture", "build_texture", "flow_to_frame", "sampling_size"]
+__all__ = ["TextureSettings", "UVTexture", "build_texture", "sampling_size"]
 
 
 @dataclass(frozen=True)
@@ -73,9 +73,7 @@ class TextureSettings:
             ``size`` (a 540-pixel frame of a whole standing person gives about 340; sampling
             finer costs time and adds no detail the frames do not have).
         texels_per_pixel: see ``sample_size``.
-        top_k: views per texel whose median is taken (the most orthogonal ones; with the
-            suite's 30 key-frames a texel is seen by 4-10 views, median 8, so 9 takes nearly
-            all of them).
+        top_k: views per texel whose median is taken (the most orthogonal ones).
         min_cos: views seeing a texel at a cosine (normal · direction to the camera) below this
             are ignored.
         depth_tolerance: metres; a texel whose projection shows another face still counts as
@@ -99,7 +97,7 @@ class TextureSettings:
         workers: threads that sample frames side by side (rasterising, registration flow and
             sampling; the samples are added to the median in frame order, so the texture
             depends on the count only through rounding, see
-            :func:`monoavatar.fit.threads.frame_pool`).
+            :func:`monoavatar.core.threads.frame_pool`).
     """
 
     size: int = 1024
@@ -362,28 +360,6 @@ def _view_samples(
     return _Views(texel=cand[idx], cos=ct[idx], colour=colour)
 
 
-def flow_to_frame(
-    frags: Fragments,
-    vertices: np.ndarray,
-    faces: np.ndarray,
-    uv: np.ndarray,
-    face_uv: np.ndarray,
-    texture: Tensor,
-    image: np.ndarray,
-    sh: np.ndarray | None,
-    flow_estimator: DISFlow,
-) -> np.ndarray:
-    """(H, W, 2) float32 flow, pixels, from the avatar (``vertices``, rasterised as
-    ``frags``) rendered with ``texture`` (S, S, 3) float64 (and shaded by ``sh``) over the
-    frame's own pixels, to the frame (H, W, 3) uint8: where the colour the texture puts at a
-    pixel is found in the frame."""
-    background = image.astype(np.float64) / 255.0
-    render = render_textured(vertices, faces, frags, uv, face_uv, texture, sh=sh,
-                             background=background)  # fmt: skip
-    render8 = (np.clip(render.numpy(), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
-    return flow_estimator.estimate(render8, image)
-
-
 # -- the most orthogonal views ----------------------------------------------------------------
 
 
@@ -522,8 +498,8 @@ def build_texture(
         frags = rasterize(verts[i], f, cams[i])
         flow = None
         if so_far is not None:  # step 6: where the texture so far lies in this frame
-            flow = flow_to_frame(frags, verts[i], f, t, fu, so_far, imgs[i], sh_i,
-                                 DISFlow("medium"))  # fmt: skip
+            render = render_over_image(verts[i], f, frags, t, fu, so_far, imgs[i], sh=sh_i)
+            flow = DISFlow("medium").estimate(render, imgs[i])
             flow[np.linalg.norm(flow, axis=2) > settings.max_flow] = 0.0
         return _view_samples(atlas, corners, f, verts[i], imgs[i], msks[i], cams[i], sh_i,
                              settings, flow, frags)  # fmt: skip

@@ -22,7 +22,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from monoavatar.camera import PinholeCamera
+from monoavatar.core.camera import PinholeCamera
 from monoavatar.render import SH_BAND_FACTORS, rasterize, sh_basis, vertex_normals
 from monoavatar.texture.atlas import TextureError, as_array
 

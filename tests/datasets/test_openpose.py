@@ -6,15 +6,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from monoavatar.io import EmptyVideoError, InputFormatError, read_openpose_folder
-from monoavatar.perception.landmarks import (
+from monoavatar.core.landmarks import (
     FACE68_TO_MEDIAPIPE468,
-    MEDIAPIPE_POSE_LANDMARKS,
+    MEDIAPIPE_LANDMARKS,
     OPENPOSE_BODY25,
     OPENPOSE_COCO18,
 )
+from monoavatar.datasets import read_openpose_folder
+from monoavatar.io import EmptyVideoError, InputFormatError
 
-MP = {name: i for i, name in enumerate(MEDIAPIPE_POSE_LANDMARKS)}
+MP = {name: i for i, name in enumerate(MEDIAPIPE_LANDMARKS)}
 
 
 def _person(names: tuple[str, ...], offset: float = 0.0, face: bool = False,

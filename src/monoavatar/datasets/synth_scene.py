@@ -16,10 +16,10 @@ import trimesh
 from PIL import Image
 
 from monoavatar.body import BodyModel
-from monoavatar.camera import PinholeCamera
-from monoavatar.io.errors import InputFormatError, InputNotFoundError
+from monoavatar.core.camera import PinholeCamera
+from monoavatar.core.errors import InputFormatError, InputNotFoundError
+from monoavatar.core.landmarks import NUM_FACE_LANDMARKS
 from monoavatar.io.frames import Frames
-from monoavatar.perception.landmarks import NUM_FACE_LANDMARKS
 from monoavatar.perception.observations import Observations
 
 

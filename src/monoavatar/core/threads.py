@@ -1,6 +1,6 @@
 """PyTorch's thread count while a fitter runs, and thread pools for per-frame work.
 
-The fitters work on small tensors, where one thread is fastest on a shared 2-core machine
+The fitters work on small tensors, for which extra PyTorch threads cost more than they save
 (see ``PoseSettings.threads`` and ``ShapeSettings.threads``); the caller's setting comes back
 afterwards. Work that is independent per frame (the flow rounds' fits, the texture's views)
 runs frames side by side instead, each frame on one thread (:func:`frame_pool`).
@@ -38,15 +38,8 @@ def frame_pool(workers: int) -> Iterator[ThreadPoolExecutor]:
     own pools do not compete for the cores (counts restored after). Each worker sets
     PyTorch's count itself, as OpenMP keeps it per thread.
 
-    Results are not bit-identical between runs: on a 120-frame turn-around, the flow rounds'
-    poses of two to four frames differed between runs of the same input, starting at float32
-    rounding (6e-8 rad) and reaching 9e-5 rad through the fit; over a whole reconstruction
-    that moved the surface error by 0.03 mm. It is not a race (serialising every stage of a
-    frame's work behind one lock left it): the float32 sums depend on where in memory their
-    arrays lie (vectorised loops split them by alignment), and two threads allocate in a
-    varying order. With one worker the allocations repeat exactly and runs are
-    bit-identical; random allocations between frames, with one worker, moved the same frames
-    by the same amounts.
+    Results can differ between runs by float32 rounding (a sum's value depends on where its
+    arrays lie in memory), with any number of workers; ``docs/decisions.md`` has the figures.
     """
     if workers < 1:
         raise ValueError(f"workers must be at least 1, got {workers}")

@@ -17,7 +17,7 @@ from typing import Any, BinaryIO
 
 import numpy as np
 
-from monoavatar.io.errors import InputFormatError, InputNotFoundError, UnsafePickleError
+from monoavatar.core.errors import InputFormatError, InputNotFoundError, UnsafePickleError
 
 
 def _allowed_globals() -> dict[tuple[str, str], Any]:

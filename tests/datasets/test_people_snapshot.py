@@ -9,6 +9,8 @@ import h5py
 import numpy as np
 import pytest
 
+from monoavatar.core.landmarks import MEDIAPIPE_LANDMARKS
+from monoavatar.datasets import is_people_snapshot, read_people_snapshot, read_snapshot_camera
 from monoavatar.io import (
     EmptyVideoError,
     FrameSelection,
@@ -16,12 +18,8 @@ from monoavatar.io import (
     InputNotFoundError,
     InputWarning,
     UnsafePickleError,
-    is_people_snapshot,
     read_frames,
-    read_people_snapshot,
 )
-from monoavatar.io.people_snapshot import read_snapshot_camera
-from monoavatar.perception.landmarks import MEDIAPIPE_POSE_LANDMARKS
 from tests.io.media_helpers import frame_number, write_video
 
 N, W, H = 8, 64, 48
@@ -73,9 +71,9 @@ def test_reads_a_sequence(tmp_path: Path) -> None:
     assert pre.masks.dtype == bool
     for k in range(N):
         np.testing.assert_array_equal(pre.masks[k], _mask(k) > 0)
-    nose = MEDIAPIPE_POSE_LANDMARKS.index("nose")
-    shoulder = MEDIAPIPE_POSE_LANDMARKS.index("left_shoulder")
-    hip = MEDIAPIPE_POSE_LANDMARKS.index("right_hip")
+    nose = MEDIAPIPE_LANDMARKS.index("nose")
+    shoulder = MEDIAPIPE_LANDMARKS.index("left_shoulder")
+    hip = MEDIAPIPE_LANDMARKS.index("right_hip")
     np.testing.assert_allclose(pre.keypoints[3, nose], [13.5, 20.5, 0.9], rtol=1e-6)
     np.testing.assert_allclose(pre.keypoints[3, shoulder], [15.5, 26.5, 0.7], rtol=1e-6)
     np.testing.assert_allclose(pre.keypoints[3, hip], [9.5, 35.5, 0.6], rtol=1e-6)

@@ -21,8 +21,10 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from monoavatar.core.errors import MonoavatarError
 
-class CameraError(ValueError):
+
+class CameraError(MonoavatarError, ValueError):
     """A camera file or camera parameters are invalid."""
 
 

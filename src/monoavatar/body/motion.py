@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from monoavatar.body import BodyModel
+from monoavatar.body.model import BodyModel
 
 
 def _set(pose: np.ndarray, body: BodyModel, joint: str, axis: int, angle: np.ndarray) -> None:

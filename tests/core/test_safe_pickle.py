@@ -7,7 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from monoavatar.io import InputFormatError, InputNotFoundError, UnsafePickleError, safe_load
+from monoavatar.core.safe_pickle import safe_load
+from monoavatar.io import InputFormatError, InputNotFoundError, UnsafePickleError
 
 
 @pytest.mark.parametrize("protocol", [0, 2, 4, 5])

@@ -1,7 +1,9 @@
-"""Typed errors and warnings for reading user inputs.
+"""The error hierarchy: every error monoavatar raises for a user's input or settings is a
+:class:`MonoavatarError`, which the CLI turns into a one-line message and exit code 2.
 
-Every error names the file it is about (``path``) and says what is wrong with it, so that a
-message reads e.g. ``clip.mp4: not a video (Invalid data found when processing input)``.
+Input errors (:class:`InputError` and below) name the file they are about (``path``) and say
+what is wrong with it, so that a message reads e.g.
+``clip.mp4: not a video (Invalid data found when processing input)``.
 Readers raise before they return anything: a reader never hands back a partial result after
 an error, and nothing is written to disk by a reader.
 """
@@ -11,7 +13,13 @@ from __future__ import annotations
 from pathlib import Path
 
 
-class InputError(ValueError):
+class MonoavatarError(Exception):
+    """An error with a message for the user: bad input, bad settings, or a stage that cannot go
+    on with what it was given. Each stage's error class derives from it (and from the built-in
+    class that describes it, e.g. ``ValueError``)."""
+
+
+class InputError(MonoavatarError, ValueError):
     """An input file or folder cannot be used.
 
     Attributes:

@@ -18,7 +18,8 @@ import numpy as np
 import torch
 
 from monoavatar.body import Avatar, BodyModel, BodyModelError, lbs, load_body_model
-from monoavatar.io.errors import InputFormatError, InputNotFoundError
+from monoavatar.core.errors import InputFormatError, InputNotFoundError
+from monoavatar.io.avatar_folder import AvatarFolder
 from monoavatar.io.gltf import PoseAnimation, skinned_mesh_from_body, write_animated_glb
 
 __all__ = [
@@ -199,7 +200,7 @@ def resolve_motion(
         return make(body, fps=fps) if frames is None else make(body, frames, fps)
     path = Path(motion)
     if not path.suffix and not path.exists():
-        raise ValueError(f"unknown motion {str(motion)!r}: use one of {list(MOTIONS)} or a .npz")
+        raise InputNotFoundError(path, f"unknown motion: use one of {list(MOTIONS)} or a .npz")
     return load_motion(path, fps, num_joints=body.num_joints)
 
 
@@ -252,36 +253,26 @@ def animate_folder(
     frames: int | None = None,
     fps: float = 30.0,
 ) -> Path:
-    """:func:`animate` the avatar in a ``reconstruct`` output folder: ``params.npz`` (keys
-    ``body_model``, ``shape`` (S,), ``offsets`` (V, 3)) and, if present, ``texture.png``.
+    """:func:`animate` the avatar of a ``reconstruct`` output folder
+    (:class:`~monoavatar.io.avatar_folder.AvatarFolder`: its shape, offsets and texture).
 
-    ``body`` None loads the shipped model named by ``body_model`` (Anny).
+    ``body`` None loads the shipped model named by the folder's ``body_model`` (Anny).
 
     Raises:
-        InputNotFoundError: no ``params.npz`` in the folder.
-        InputFormatError: it lacks a key or has wrong shapes.
+        InputNotFoundError: no such folder, or a file of it missing.
+        AvatarFolderError: a file of another format or malformed.
         BodyModelError: the avatar does not fit the body model.
     """
-    from monoavatar.io.images import load_image
-
-    folder = Path(avatar_dir)
-    params = folder / "params.npz"
-    if not params.is_file():
-        raise InputNotFoundError(params, "no params.npz in the avatar folder")
-    try:
-        with np.load(params, allow_pickle=False) as data:
-            identity = str(data["body_model"])
-            shape = np.asarray(data["shape"], dtype=np.float64)
-            offsets = np.asarray(data["offsets"], dtype=np.float64)
-    except (OSError, ValueError, KeyError) as exc:
-        raise InputFormatError(params, f"not an avatar parameter file: {exc}") from exc
+    folder = AvatarFolder.load(avatar_dir, mesh=False)
+    params = folder.params
     if body is None:
-        body = _body_for(identity)
-    if shape.shape != (body.shape_dim,):
+        body = _body_for(params.body_model)
+    if params.shape.shape != (body.shape_dim,):
         raise InputFormatError(
-            params, f"shape: expected ({body.shape_dim},) for {identity}, got {shape.shape}"
+            Path(avatar_dir) / "params.npz",
+            f"shape: expected ({body.shape_dim},) for {params.body_model}, "
+            f"got {params.shape.shape}",
         )
-    avatar = Avatar(model=identity, shape=shape, shape_names=body.shape_names, offsets=offsets)
-    texture_path = folder / "texture.png"
-    texture = load_image(texture_path) if texture_path.is_file() else None
-    return animate(body, avatar, motion, out_path, texture=texture, frames=frames, fps=fps)
+    avatar = Avatar(model=params.body_model, shape=params.shape, shape_names=body.shape_names,
+                    offsets=params.offsets)  # fmt: skip
+    return animate(body, avatar, motion, out_path, texture=folder.texture, frames=frames, fps=fps)

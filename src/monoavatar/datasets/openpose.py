@@ -9,7 +9,7 @@ OpenPose writes one ``*_keypoints.json`` per frame::
 points (dlib's 68 plus the pupils) or is empty. Coordinates are pixels with pixel centres at
 integers (shifted by +0.5 to our convention), missing joints are (0, 0, 0). They are converted
 to our 33-landmark mediapipe order (joints that exist in both; zero confidence elsewhere) and to
-face-mesh rows (68 mapped vertices; NaN elsewhere) by :mod:`monoavatar.perception.landmarks`.
+face-mesh rows (68 mapped vertices; NaN elsewhere) by :mod:`monoavatar.core.landmarks`.
 """
 
 from __future__ import annotations
@@ -19,14 +19,14 @@ from pathlib import Path
 
 import numpy as np
 
-from monoavatar.io.errors import EmptyVideoError, InputFormatError, InputNotFoundError
-from monoavatar.io.images import natural_sort_key
-from monoavatar.perception.landmarks import (
+from monoavatar.core.errors import EmptyVideoError, InputFormatError, InputNotFoundError
+from monoavatar.core.landmarks import (
     NUM_BODY_LANDMARKS,
     NUM_FACE_LANDMARKS,
     openpose_to_mediapipe_body,
     openpose_to_mediapipe_face,
 )
+from monoavatar.io.images import natural_sort_key
 from monoavatar.perception.observations import PrecomputedPerception
 
 _FORMATS = {75: "body25", 54: "coco18"}

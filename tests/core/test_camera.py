@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 import torch
 
-from monoavatar.camera import CameraError, PinholeCamera, plucker, point_line_distance
+from monoavatar.core.camera import CameraError, PinholeCamera, plucker, point_line_distance
 
 
 def test_project_and_pixel_rays_round_trip():

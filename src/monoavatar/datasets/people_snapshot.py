@@ -23,12 +23,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from monoavatar.camera import CameraError, PinholeCamera
-from monoavatar.io.errors import InputFormatError, InputNotFoundError, InputWarning
+from monoavatar.core.camera import CameraError, PinholeCamera
+from monoavatar.core.errors import InputFormatError, InputNotFoundError, InputWarning
+from monoavatar.core.landmarks import openpose_to_mediapipe_body
+from monoavatar.core.safe_pickle import safe_load
 from monoavatar.io.frames import Frames, FrameSelection
-from monoavatar.io.safe_pickle import safe_load
 from monoavatar.io.video import VIDEO_EXTENSIONS, count_video_frames, read_video
-from monoavatar.perception.landmarks import openpose_to_mediapipe_body
 from monoavatar.perception.observations import PrecomputedPerception
 
 

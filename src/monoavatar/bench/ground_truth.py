@@ -1,0 +1,32 @@
+"""The surface error of one reconstruction against its synth folder's ground truth, with the
+benchmark's protocol; ``demo``, ``reconstruct`` and ``fit-shape`` print it for synth inputs."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from monoavatar.bench.metrics import Rig, surface_metrics
+from monoavatar.body import BodyModel
+from monoavatar.datasets.synth_scene import SynthGroundTruth
+from monoavatar.fit.shape import CanonicalShape
+from monoavatar.io.avatar_folder import GroundTruthSummary
+
+
+def ground_truth_error(body: BodyModel, shape: CanonicalShape,
+                       truth: SynthGroundTruth) -> GroundTruthSummary:  # fmt: skip
+    """The canonical avatar's surface error against the truth's first subject, in mm: after a
+    similarity transform and the avatar's articulated pose fitted to the truth
+    (:func:`~monoavatar.bench.metrics.surface_metrics`), and after the similarity alone."""
+    mesh = truth.canonical_mesh(0)
+    with torch.no_grad():
+        _, joints = body.rest_shape(shape.shape.to(body.dtype)[None])
+    rig = Rig(body.skin_weights.double().numpy(), joints[0].double().numpy(),
+              tuple(body.parents))  # fmt: skip
+    metrics, _ = surface_metrics(shape.vertices.double().numpy(), shape.faces.numpy(),
+                                 np.asarray(mesh.vertices), np.asarray(mesh.faces),
+                                 rig=rig)  # fmt: skip
+    return GroundTruthSummary(
+        surface_error_mm=metrics.mean_mm,
+        surface_error_rigid_mm=float(metrics.rigid_mean_mm or metrics.mean_mm),
+    )

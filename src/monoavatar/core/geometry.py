@@ -1,0 +1,67 @@
+"""Mesh geometry shared by every layer above: argument checks for vertex and face arrays, and
+area-weighted vertex normals."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+__all__ = ["face_indices", "float_tensor", "vertex_normals", "writable"]
+
+
+def writable(x: object) -> object:
+    """``x``, copied when it is a read-only NumPy array (a broadcast view, say), which torch
+    would otherwise share with a warning."""
+    if isinstance(x, np.ndarray) and not x.flags.writeable:
+        return np.array(x)
+    return x
+
+
+def float_tensor(x: Tensor | np.ndarray, name: str, last: int | None = None) -> Tensor:
+    t = x if isinstance(x, Tensor) else torch.as_tensor(writable(np.asarray(x, np.float64)))
+    if not t.is_floating_point():
+        raise ValueError(f"{name} must be floating point, got dtype {t.dtype}")
+    if last is not None and (t.ndim != 2 or t.shape[1] != last):
+        raise ValueError(f"{name} must have shape (N, {last}), got {tuple(t.shape)}")
+    return t
+
+
+def face_indices(faces: Tensor | np.ndarray, num_vertices: int) -> Tensor:
+    f = torch.as_tensor(faces)
+    if f.is_floating_point() or f.dtype == torch.bool:
+        raise ValueError(f"faces must be integers, got dtype {f.dtype}")
+    if f.ndim != 2 or f.shape[1] != 3:
+        raise ValueError(f"faces must have shape (F, 3), got {tuple(f.shape)}")
+    f = f.to(dtype=torch.int64)
+    if f.numel() and (int(f.min()) < 0 or int(f.max()) >= num_vertices):
+        raise ValueError(
+            f"faces index [{int(f.min())}, {int(f.max())}] but there are {num_vertices} vertices"
+        )
+    return f
+
+
+def vertex_normals(vertices: Tensor | np.ndarray, faces: Tensor | np.ndarray) -> Tensor:
+    """Area-weighted unit vertex normals.
+
+    Each face adds its unnormalised normal ``(v1 - v0) x (v2 - v0)`` (length = twice its area,
+    orientation by the right-hand rule on the corner order) to its three corners; the sums are
+    normalised. Vertices used by no face, or whose faces cancel, get the zero vector.
+
+    Args:
+        vertices: (..., V, 3) positions (any units), optionally batched.
+        faces: (F, 3) integer vertex indices.
+    Returns:
+        (..., V, 3) unit normals, dtype of ``vertices`` (float64 for arrays); differentiable.
+    """
+    v = float_tensor(vertices, "vertices")
+    if v.ndim < 2 or v.shape[-1] != 3:
+        raise ValueError(f"vertices must have shape (..., V, 3), got {tuple(v.shape)}")
+    f = face_indices(faces, v.shape[-2]).to(v.device)
+    v0, v1, v2 = v[..., f[:, 0], :], v[..., f[:, 1], :], v[..., f[:, 2], :]
+    face_n = torch.cross(v1 - v0, v2 - v0, dim=-1)
+    acc = torch.zeros_like(v)
+    for k in range(3):
+        acc = acc.index_add(-2, f[:, k], face_n)
+    return F.normalize(acc, dim=-1)

@@ -1,0 +1,292 @@
+"""``monoavatar reconstruct`` (Paper B): a video of a person turning around → a textured,
+rigged avatar folder (:class:`~monoavatar.io.avatar_folder.AvatarFolder`).
+
+Stages (:mod:`monoavatar.pipelines.stages`, each timed in ``report.json``)::
+
+    inputs ─ perception ─ poses ─ shape ─┬─ (refine ─ shape) × refine_rounds
+                                         └─ texture ─ (flow ─ shape ─ texture) × flow_rounds
+                                                                            └─ export
+
+Outputs are written only after every stage has succeeded, so a failure leaves no partial
+output. The pose stage is cached (``$MONOAVATAR_CACHE/stages``) by the content of its inputs
+and settings, as perception is: a second run with the same input and settings resumes after it.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import resource
+import tempfile
+import time
+import warnings
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from monoavatar.body import BodyModel, load_body_model
+from monoavatar.fit.flow_refine import FlowRefineSettings
+from monoavatar.fit.pose import PoseSettings, PoseTrack, evaluate_fit, world_up
+from monoavatar.fit.shape import CanonicalShape, ShapeSettings
+from monoavatar.io.avatar_folder import (
+    AvatarFolder,
+    AvatarParams,
+    FitSummary,
+    InputSummary,
+    Report,
+    ScaleSummary,
+    TextureSummary,
+)
+from monoavatar.pipelines.previews import previews
+from monoavatar.pipelines.stages import (
+    PERCEPTION,
+    POSES,
+    Inputs,
+    InputSettings,
+    PipelineError,
+    StageTimer,
+    flow_stage,
+    load_inputs,
+    pose_stage,
+    refine_stage,
+    shape_stage,
+    texture_stage,
+)
+from monoavatar.texture.backproject import TextureSettings, UVTexture
+
+__all__ = ["ReconstructConfig", "ReconstructResult", "fit_avatar", "reconstruct", "shape_rounds"]
+
+
+@dataclass
+class ReconstructConfig:
+    """Options of :func:`reconstruct`; the CLI's options are derived from these fields and
+    those of the sub-settings (``monoavatar reconstruct --help``).
+
+    Attributes:
+        input: what to read and how to perceive it.
+        device: ``"cpu"``; ``"cuda"`` is accepted only when a GPU is present.
+        body_model: ``"anny"`` or a path to a user's SMPL file.
+        refine_rounds: rounds of pose re-fit with the consensus shape by the pose energy,
+            each followed by the shape again, before the texture.
+        flow_rounds: rounds of key-frame pose refinement by optical flow from the textured
+            avatar's render to each frame and by the outline, each followed by the shape and
+            the texture again.
+        progress: progress bars.
+        pose, shape, texture, flow: the stages' settings (the person's height is
+            ``pose.height``, metres; the shape-only baseline is ``shape.fit_offsets=False``).
+    """
+
+    input: InputSettings = field(default_factory=InputSettings)
+    device: str = "cpu"
+    body_model: str = "anny"
+    refine_rounds: int = 0
+    flow_rounds: int = 3
+    progress: bool = True
+    pose: PoseSettings = field(default_factory=PoseSettings)
+    shape: ShapeSettings = field(default_factory=ShapeSettings)
+    texture: TextureSettings = field(default_factory=TextureSettings)
+    flow: FlowRefineSettings = field(default_factory=FlowRefineSettings)
+
+    def validate(self) -> None:
+        """Raise :class:`PipelineError` naming the CLI option that is out of range."""
+        height, focal = self.pose.height, self.input.focal
+        checks = [
+            (self.input.frames >= 2, f"--frames must be at least 2, got {self.input.frames}"),
+            (self.refine_rounds >= 0, f"--refine-rounds must be >= 0, got {self.refine_rounds}"),
+            (self.flow_rounds >= 0, f"--flow-rounds must be >= 0, got {self.flow_rounds}"),
+            (self.flow.workers >= 1 and self.texture.workers >= 1,
+             f"--workers must be at least 1, got {min(self.flow.workers, self.texture.workers)}"),
+            (height is None or 0.5 <= height <= 2.6,
+             f"--height is in metres (0.5 to 2.6), got {height}; 175 cm is 1.75"),
+            (focal is None or focal > 0,
+             f"--focal must be a positive number of pixels, got {focal}"),
+            (self.texture.size >= 16,
+             f"--texture-size must be at least 16, got {self.texture.size}"),
+            (self.input.perception in PERCEPTION,
+             f"perception must be one of {PERCEPTION}, got {self.input.perception!r}"),
+            (self.input.poses in POSES,
+             f"poses must be one of {POSES}, got {self.input.poses!r}"),
+            (self.device in ("cpu", "cuda"), f"--device must be cpu or cuda, got {self.device!r}"),
+        ]  # fmt: skip
+        for ok, message in checks:
+            if not ok:
+                raise PipelineError(message)
+        if self.device == "cuda" and not torch.cuda.is_available():
+            raise PipelineError("--device cuda: no CUDA GPU is available to PyTorch here")
+
+
+@dataclass(frozen=True)
+class ReconstructResult:
+    """What :func:`reconstruct` computed and wrote (``files``: name → path)."""
+
+    out_dir: Path
+    files: dict[str, Path]
+    body: BodyModel
+    inputs: Inputs
+    track: PoseTrack
+    shape: CanonicalShape
+    texture: UVTexture
+    lighting_sh: np.ndarray
+    report: Report
+
+
+# -- the analysis-by-synthesis loop -----------------------------------------------------------
+
+
+def shape_rounds(body: BodyModel, inputs: Inputs, track: PoseTrack, config: ReconstructConfig,
+                 timer: StageTimer) -> tuple[PoseTrack, CanonicalShape]:  # fmt: skip
+    """The consensus shape, then ``refine_rounds`` rounds of pose re-fit and shape (none with
+    ground-truth poses). Returns the track shifted by the last shape fit, and the shape."""
+    with timer("shape"):
+        track, shape = shape_stage(body, inputs, track, config.shape)
+    rounds = config.refine_rounds if config.input.poses == "fit" else 0
+    for _ in range(rounds):
+        with timer("refine"):
+            track = refine_stage(body, inputs, track, shape, config.pose,
+                                 progress=config.progress)  # fmt: skip
+        with timer("shape"):
+            track, shape = shape_stage(body, inputs, track, config.shape)
+    return track, shape
+
+
+def fit_avatar(body: BodyModel, inputs: Inputs, config: ReconstructConfig, timer: StageTimer,
+               ) -> tuple[PoseTrack, CanonicalShape, UVTexture, np.ndarray]:  # fmt: skip
+    """Poses, shape (:func:`shape_rounds`) and texture, then ``flow_rounds`` rounds of flow
+    refinement each followed by the shape and the texture. Returns the final track (shifted),
+    shape, texture and SH lighting (3, 9)."""
+    with timer("poses"):
+        track = pose_stage(body, inputs, config.pose, poses=config.input.poses,
+                           progress=config.progress)  # fmt: skip
+    track, shape = shape_rounds(body, inputs, track, config, timer)
+    with timer("texture"):
+        texture, sh = texture_stage(body, inputs, track, shape, config.texture,
+                                    progress=config.progress)  # fmt: skip
+    rounds = config.flow_rounds if config.input.poses == "fit" else 0
+    for _ in range(rounds):
+        with timer("flow"):
+            track = flow_stage(body, inputs, track, shape, texture, sh, config.flow, config.pose,
+                               progress=config.progress)  # fmt: skip
+        with timer("shape"):
+            track, shape = shape_stage(body, inputs, track, config.shape)
+        with timer("texture"):
+            texture, sh = texture_stage(body, inputs, track, shape, config.texture,
+                                        progress=config.progress)  # fmt: skip
+    return track, shape, texture, sh
+
+
+# -- report and export ------------------------------------------------------------------------
+
+
+def _check_output(out_dir: Path) -> None:
+    """Fail early, before any work, when the output folder cannot be written."""
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(dir=out_dir, prefix=".write-test-")
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise PipelineError(f"cannot write to the output folder {out_dir}: {exc}") from exc
+
+
+def _machine() -> dict[str, object]:
+    return {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
+            "torch_threads": torch.get_num_threads(), "python": platform.python_version(),
+            "torch": torch.__version__}  # fmt: skip
+
+
+def _report(input_path: str | Path, body: BodyModel, inputs: Inputs, track: PoseTrack,
+            shape: CanonicalShape, texture: UVTexture, config: ReconstructConfig,
+            caught: list[str], timings: dict[str, float]) -> Report:  # fmt: skip
+    height = float(np.ptp(shape.vertices[:, 1].double().numpy()))
+    obs = inputs.observations
+    good = ~track.failed
+    kp_err, iou = evaluate_fit(body, shape.shape, track.poses, track.translations, obs,
+                               offsets=shape.offsets)  # fmt: skip
+    given = config.pose.height is not None
+    return Report(
+        input=InputSummary(path=str(input_path), kind=inputs.kind, frames=len(obs),
+                           frame_indices=np.asarray(obs.frame_indices).tolist(),
+                           image_size=list(obs.image_size[::-1]),
+                           keypoints=obs.keypoint_source),  # fmt: skip
+        settings=asdict(config),
+        scale=ScaleSummary(
+            known=bool(given or config.input.poses == "ground-truth"), height_m=height,
+            note=("metric: the given height" if given else
+                  "up to scale: no --height given; the body keeps an average height"),
+        ),  # fmt: skip
+        fit=FitSummary(
+            keypoint_error_px=kp_err.tolist(), silhouette_iou=iou.tolist(),
+            failed=track.failed.tolist(), pose_energy=np.asarray(track.energy).tolist(),
+            median_silhouette_iou=float(np.median(iou[good])) if good.any() else 0.0,
+        ),  # fmt: skip
+        texture=TextureSummary(albedo=texture.albedo, size=texture.size,
+                               coverage=float(texture.coverage[texture.chart].mean())),
+        warnings=caught,
+        machine=_machine(),
+        timings=timings,
+    )
+
+
+def avatar_folder(body: BodyModel, inputs: Inputs, track: PoseTrack, shape: CanonicalShape,
+                  texture: UVTexture, sh: np.ndarray, report: Report) -> AvatarFolder:  # fmt: skip
+    """The avatar folder of a finished reconstruction (previews rendered)."""
+    cam = track.camera
+    params = AvatarParams(
+        body_model=body.identity, shape=shape.shape.double().numpy(),
+        offsets=shape.offsets.double().numpy(), poses=track.poses,
+        translations=track.translations, frame_indices=inputs.observations.frame_indices,
+        camera=cam, world_up=world_up(cam), height_m=report.scale.height_m,
+        scale_known=report.scale.known, lighting_sh=sh,
+    )  # fmt: skip
+    return AvatarFolder(
+        params, report, shape.vertices.double().numpy(), body.faces.numpy(),
+        uv=body.uv.double().numpy(), face_uv=body.face_uv.numpy(), texture=texture.image,
+        previews=previews(body, inputs, track, shape, texture, sh),
+    )  # fmt: skip
+
+
+# -- the pipeline -----------------------------------------------------------------------------
+
+
+def reconstruct(input_path: str | Path, out_dir: str | Path,
+                config: ReconstructConfig | None = None) -> ReconstructResult:  # fmt: skip
+    """Run the whole pipeline on a video, image folder, People-Snapshot or synth folder and
+    write the avatar folder ``out_dir``.
+
+    Raises:
+        MonoavatarError (PipelineError, InputError, NoPersonError, PoseFitError, …): with a
+        message for the user.
+    """
+    from monoavatar.io.gltf import skinned_mesh_from_body
+
+    config = config or ReconstructConfig()
+    config.validate()
+    out = Path(out_dir)
+    _check_output(out)
+    timer = StageTimer()
+    start = time.perf_counter()
+    with warnings.catch_warnings(record=True) as records:
+        warnings.simplefilter("always")
+        with timer("perception"):
+            inputs = load_inputs(input_path, config.input)
+        body = load_body_model(config.body_model)
+        track, shape, texture, sh = fit_avatar(body, inputs, config, timer)
+    caught = []
+    for record in records:
+        caught.append(f"{record.category.__name__}: {record.message}")
+        warnings.warn_explicit(record.message, record.category, record.filename, record.lineno)
+    timings = timer.seconds
+    report = _report(input_path, body, inputs, track, shape, texture, config, caught,
+                     dict(timings))  # fmt: skip
+    with timer("export"):
+        folder = avatar_folder(body, inputs, track, shape, texture, sh, report)
+        glb = skinned_mesh_from_body(body, shape.shape.double().numpy(),
+                                     shape.offsets.double().numpy(), texture.image)  # fmt: skip
+        files = folder.save(out, glb=glb)
+    report.timings = dict(timer.seconds)
+    report.seconds = time.perf_counter() - start
+    report.peak_memory_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    report.write(out / "report.json")  # the complete report: export time, total, memory
+    return ReconstructResult(out, files, body, inputs, track, shape, texture, sh, report)

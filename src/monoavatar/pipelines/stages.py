@@ -1,0 +1,322 @@
+"""The stages the pipelines compose, each a function from typed inputs to a typed result, and
+the timer that measures them.
+
+- :func:`load_inputs`: a path → :class:`Inputs` (key-frames, camera, perception, ground truth);
+- :func:`pose_stage`: Sec. B.3.2, → :class:`~monoavatar.fit.pose.PoseTrack` (cached);
+- :func:`shape_stage`: Sec. B.3.3, → the consensus
+  :class:`~monoavatar.fit.shape.CanonicalShape` and the track shifted by its translation
+  corrections (the posed avatar lies where the shape was fitted);
+- :func:`refine_stage`: poses re-fitted with the consensus shape by the pose energy;
+- :func:`texture_stage`: Sec. B.3.4, → :class:`~monoavatar.texture.UVTexture` and the SH
+  lighting divided out of it;
+- :func:`flow_stage`: poses re-fitted by optical flow from the textured avatar's render to
+  each frame and by the outline (Paper A's analysis by synthesis).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from monoavatar.body import BodyModel, load_body_model
+from monoavatar.core.errors import MonoavatarError
+from monoavatar.datasets.synth_scene import SynthGroundTruth
+from monoavatar.fit.flow_refine import FlowRefineSettings, refine_poses_with_flow
+from monoavatar.fit.pose import PoseSettings, PoseTrack, evaluate_fit, fit_poses, refine_poses
+from monoavatar.fit.shape import CanonicalShape, ShapeSettings, fit_consensus_shape
+from monoavatar.io.frames import Frames, FrameSelection
+from monoavatar.perception.observations import Observations
+from monoavatar.perception.pipeline import PerceptionSettings
+from monoavatar.texture.backproject import TextureSettings, UVTexture, build_texture
+
+__all__ = [
+    "PERCEPTION",
+    "POSES",
+    "Inputs",
+    "InputSettings",
+    "PipelineError",
+    "StageTimer",
+    "flow_stage",
+    "load_inputs",
+    "pose_stage",
+    "posed_avatar",
+    "refine_stage",
+    "shape_stage",
+    "shifted_track",
+    "texture_stage",
+]
+
+PERCEPTION = ("auto", "mediapipe", "ground-truth")
+POSES = ("fit", "ground-truth")
+
+
+class PipelineError(MonoavatarError, RuntimeError):
+    """A pipeline cannot go on; the message says why and what to do."""
+
+
+class StageTimer:
+    """Seconds per stage name, summed over the times a stage runs: ``with timer("shape"):``."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = {}
+
+    @contextmanager
+    def __call__(self, stage: str) -> Iterator[None]:
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.seconds[stage] = self.seconds.get(stage, 0.0) + time.perf_counter() - t0
+
+
+# -- inputs and perception --------------------------------------------------------------------
+
+
+@dataclass
+class InputSettings:
+    """What to read and how to perceive it.
+
+    Attributes:
+        frames: key-frames to use, spread evenly over the input (all when it has fewer).
+        focal: focal length in pixels (None: ``camera`` or the documented default).
+        camera: a ``camera.json`` with the intrinsics (and extrinsics) of the input.
+        perception: ``"auto"`` (a synth or People-Snapshot folder's own masks and keypoints
+            when present, else mediapipe), ``"mediapipe"`` or ``"ground-truth"``.
+        poses: ``"fit"``, or ``"ground-truth"`` (synth folders only).
+        perception_settings: options of mediapipe perception.
+    """
+
+    frames: int = 120
+    focal: float | None = None
+    camera: str | None = None
+    perception: str = "auto"
+    poses: str = "fit"
+    perception_settings: PerceptionSettings = field(default_factory=PerceptionSettings)
+
+
+@dataclass(frozen=True)
+class Inputs:
+    """Frames, camera and perception of the key-frames, and the ground truth when known.
+
+    ``kind`` is video | images | image | people-snapshot | synth."""
+
+    frames: Frames
+    observations: Observations
+    kind: str
+    ground_truth: SynthGroundTruth | None
+
+
+def load_inputs(path: str | Path, settings: InputSettings) -> Inputs:
+    """Read key-frames and perceive them (or take a folder's own perception).
+
+    Raises:
+        InputNotFoundError: no such file or folder; PipelineError: an option that needs
+        another kind of input.
+    """
+    from monoavatar.core.errors import InputNotFoundError
+    from monoavatar.datasets import is_people_snapshot, read_people_snapshot
+    from monoavatar.datasets.synth_scene import is_synth_scene, read_synth_scene
+    from monoavatar.io import read_frames
+    from monoavatar.io.intrinsics import resolve_camera
+    from monoavatar.perception import perceive
+
+    path = Path(path)
+    if not path.exists():
+        raise InputNotFoundError(path, "no such file or folder")
+    selection = FrameSelection(num_keyframes=settings.frames)
+    if path.is_dir() and is_synth_scene(path):
+        n = len(sorted((path / "frames").glob("*.png")))
+        idx = selection.select(np.arange(n, dtype=np.float64))
+        scene = read_synth_scene(path, frames=idx)
+        if settings.perception in ("auto", "ground-truth"):
+            obs = scene.observations
+        else:
+            obs = perceive(scene.frames, scene.camera, settings.perception_settings)
+        return Inputs(scene.frames, obs, "synth", scene.ground_truth)
+    if settings.poses == "ground-truth":
+        raise PipelineError("--poses ground-truth needs a monoavatar synth folder as input")
+    if path.is_dir() and is_people_snapshot(path):
+        snap = read_people_snapshot(path, selection)
+        camera = snap.camera
+        if settings.focal is not None or settings.camera is not None:
+            camera = resolve_camera(snap.frames.width, snap.frames.height, focal_px=settings.focal,
+                                    camera_path=settings.camera)  # fmt: skip
+        pre = snap.precomputed if settings.perception != "mediapipe" else None
+        obs = perceive(snap.frames, camera, settings.perception_settings, precomputed=pre)
+        return Inputs(snap.frames, obs, "people-snapshot", None)
+    if settings.perception == "ground-truth":
+        raise PipelineError(
+            "--perception ground-truth needs a monoavatar synth or People-Snapshot folder"
+        )
+    frames = read_frames(path, selection)
+    camera = resolve_camera(frames.width, frames.height, focal_px=settings.focal,
+                            camera_path=settings.camera)  # fmt: skip
+    obs = perceive(frames, camera, settings.perception_settings)
+    kind = "images" if path.is_dir() else ("image" if len(frames) == 1 else "video")
+    return Inputs(frames, obs, kind, None)
+
+
+# -- stage cache ------------------------------------------------------------------------------
+
+
+def _stage_dir() -> Path:
+    from monoavatar.perception.cache import cache_root
+
+    return cache_root() / "stages"
+
+
+def _key(*parts: object) -> str:
+    h = hashlib.sha256()
+    for part in parts:
+        if isinstance(part, np.ndarray):
+            h.update(np.ascontiguousarray(part).tobytes())
+            h.update(str(part.shape).encode())
+        else:
+            h.update(json.dumps(part, sort_keys=True, default=str).encode())
+    return h.hexdigest()[:32]
+
+
+def _observations_key(obs: Observations) -> str:
+    return _key(obs.masks, obs.keypoints, obs.camera.K, obs.camera.R, obs.camera.t,
+                obs.frame_indices)  # fmt: skip
+
+
+# -- poses ------------------------------------------------------------------------------------
+
+
+def _ground_truth_track(body: BodyModel, inputs: Inputs) -> PoseTrack:
+    """Poses of a synth folder's ground truth for the fitting body: the true joint rotations,
+    the true phenotype as the initial shape, translations that put the fitting skeleton's root
+    where the true one is."""
+    gt = inputs.ground_truth
+    if gt is None:
+        raise PipelineError("ground-truth poses need a monoavatar synth folder as input")
+    gt_body = load_body_model("anny-local")
+    shape = torch.as_tensor(gt.shapes[0][: body.shape_dim], dtype=body.dtype)
+    with torch.no_grad():
+        _, joints = body.rest_shape(shape[None])
+        _, gt_joints = gt_body.rest_shape(torch.as_tensor(gt.shapes[:1], dtype=gt_body.dtype))
+    translations = gt.translations + (gt_joints[0, 0] - joints[0, 0]).double().numpy()
+    obs = inputs.observations
+    kp, iou = evaluate_fit(body, shape, gt.poses, translations, obs)
+    return PoseTrack(
+        body_model=body.identity, shape=shape.double().numpy(), poses=gt.poses.copy(),
+        translations=translations, camera=obs.camera, frame_indices=obs.frame_indices,
+        keypoint_error=kp, silhouette_iou=iou, energy=np.zeros(len(obs)),
+        failed=np.zeros(len(obs), bool), height=float("nan"), scale_known=True, seconds=0.0,
+    )  # fmt: skip
+
+
+def pose_stage(body: BodyModel, inputs: Inputs, settings: PoseSettings, *, poses: str = "fit",
+               progress: bool = False) -> PoseTrack:  # fmt: skip
+    """Sec. B.3.2: one shape and a pose per key-frame (``poses="ground-truth"``: the synth
+    folder's own), cached in ``$MONOAVATAR_CACHE/stages`` by the observations and settings."""
+    if poses == "ground-truth":
+        return _ground_truth_track(body, inputs)
+    key = _key("poses-1", body.identity, _observations_key(inputs.observations), asdict(settings))
+    entry = _stage_dir() / f"poses-{key}.npz"
+    if entry.is_file():
+        try:
+            return PoseTrack.load(entry)
+        except (OSError, ValueError, KeyError):
+            pass
+    track = fit_poses(body, inputs.observations, settings, progress=progress)
+    entry.parent.mkdir(parents=True, exist_ok=True)
+    track.save(entry)
+    return track
+
+
+# -- shape ------------------------------------------------------------------------------------
+
+
+def shifted_track(track: PoseTrack, shape: CanonicalShape) -> PoseTrack:
+    """The track with the shape fit's per-frame translation corrections applied: the posed
+    avatar then lies where the shape was fitted."""
+    good = np.flatnonzero(~track.failed)
+    translations = track.translations.copy()
+    translations[good[shape.frames]] += shape.frame_shifts
+    return replace(track, translations=translations)
+
+
+def shape_stage(body: BodyModel, inputs: Inputs, track: PoseTrack, settings: ShapeSettings
+                ) -> tuple[PoseTrack, CanonicalShape]:  # fmt: skip
+    """Sec. B.3.3 on the key-frames whose pose fit did not fail: the consensus shape, and the
+    track shifted by the shape fit's translation corrections (:func:`shifted_track`)."""
+    good = np.flatnonzero(~track.failed)
+    if len(good) < 2:
+        raise PipelineError(
+            f"only {len(good)} key-frames have a usable pose fit; need at least 2 "
+            "(is the person fully visible, turning in place?)"
+        )
+    shape = fit_consensus_shape(
+        body, inputs.observations.masks[good], track.camera, track.poses[good],
+        track.translations[good], track.shape, settings, progress=False,
+    )  # fmt: skip
+    return shifted_track(track, shape), shape
+
+
+def refine_stage(body: BodyModel, inputs: Inputs, track: PoseTrack, shape: CanonicalShape,
+                 settings: PoseSettings, *, progress: bool = False) -> PoseTrack:  # fmt: skip
+    """The poses re-fitted with the consensus shape (its β and offsets) by the pose energy,
+    from ``track`` as :func:`shape_stage` shifted it (pose ↔ shape alternation)."""
+    start = replace(track, shape=shape.shape.double().numpy())
+    return refine_poses(body, inputs.observations, start, shape.offsets, settings,
+                        progress=progress)  # fmt: skip
+
+
+# -- texture ----------------------------------------------------------------------------------
+
+
+def posed_avatar(body: BodyModel, shape: np.ndarray | torch.Tensor, offsets: np.ndarray |
+                 torch.Tensor, poses: np.ndarray, translations: np.ndarray) -> np.ndarray:
+    """The avatar (shape + offsets) posed at K poses: (K, V, 3) world metres."""
+    s = torch.as_tensor(shape, dtype=body.dtype).reshape(1, -1)
+    d = torch.as_tensor(offsets, dtype=body.dtype)
+    out = []
+    with torch.no_grad():
+        for i in range(0, len(poses), 16):
+            p = torch.as_tensor(poses[i : i + 16], dtype=body.dtype)
+            t = torch.as_tensor(translations[i : i + 16], dtype=body.dtype)
+            o = body(shape=s.expand(len(p), -1), pose=p, translation=t, offsets=d)
+            out.append(o.vertices.double().numpy())
+    return np.concatenate(out)
+
+
+def texture_stage(body: BodyModel, inputs: Inputs, track: PoseTrack, shape: CanonicalShape,
+                  settings: TextureSettings, *, progress: bool = False,
+                  ) -> tuple[UVTexture, np.ndarray]:  # fmt: skip
+    """Sec. B.3.4 (``track`` as :func:`shape_stage` shifted it): one SH lighting estimated
+    from every 4th key-frame on the fitted avatar, then back-projection of the key-frames with
+    that shading divided out (an albedo texture). Returns the texture and the lighting
+    (3, 9)."""
+    from monoavatar.texture.lighting import estimate_sh
+
+    good = np.flatnonzero(~track.failed)
+    posed = posed_avatar(body, shape.shape, shape.offsets, track.poses[good],
+                         track.translations[good])  # fmt: skip
+    images = inputs.frames.images[good]
+    masks = inputs.observations.masks[good]
+    sh = estimate_sh(posed[::4], body.faces, images[::4], masks[::4], track.camera)
+    texture = build_texture(posed, body.faces, body.uv, body.face_uv, images, masks,
+                            track.camera, sh, settings, progress=progress)  # fmt: skip
+    return texture, sh
+
+
+def flow_stage(body: BodyModel, inputs: Inputs, track: PoseTrack, shape: CanonicalShape,
+               texture: UVTexture, sh: np.ndarray, settings: FlowRefineSettings,
+               pose_settings: PoseSettings, *, progress: bool = False) -> PoseTrack:  # fmt: skip
+    """The key-frame poses refined by optical flow from the avatar rendered with ``texture``
+    to each frame (:func:`monoavatar.fit.flow_refine.refine_poses_with_flow`)."""
+    return refine_poses_with_flow(
+        body, inputs.observations, inputs.frames.images, track, shape.shape, shape.offsets,
+        texture.as_float(), sh if texture.albedo else None, settings, pose_settings,
+        progress=progress,
+    )  # fmt: skip
