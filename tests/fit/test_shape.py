@@ -26,8 +26,8 @@ from monoavatar.fit.shape import (
     ShapeSettings,
     fit_consensus_shape,
     geman_mcclure,
-    line_data_energy,
 )
+from monoavatar.fit.shape_solver import line_data_energy
 from monoavatar.render import rasterize, vertex_normals
 from tests.gradcheck import directional_gradcheck
 
@@ -326,7 +326,7 @@ def test_fit_validates_inputs(anny32):
 def test_sparse_offset_solve_minimises_the_reference_energy(data_term):
     """The fast path (per-vertex blocks + sparse regularisers + CG) against the energy written
     directly in torch: its gradient vanishes at the solution."""
-    from monoavatar.fit.shape import _offset_step, _Problem, _projectors
+    from monoavatar.fit.shape_solver import Problem, offset_step, projectors
 
     verts, faces = _grid(7)
     V = len(verts)
@@ -351,7 +351,7 @@ def test_sparse_offset_solve_minimises_the_reference_energy(data_term):
     tau_lp, tau_var = rng.uniform(0.5, 2, V), rng.uniform(0.5, 2, V)
     rigid = rng.uniform(0, 1, V)
     sx, syz = symmetry_operators(mirror)
-    problem = _Problem(
+    problem = Problem(
         body=None,  # type: ignore[arg-type]  (not used by the offset step)
         laplacian=uniform_laplacian(faces, V),
         sym_x=sx,
@@ -364,9 +364,9 @@ def test_sparse_offset_solve_minimises_the_reference_energy(data_term):
     sigma, scale, weights = 0.01, 0.7, (2.0, 0.3, 1.5)
     start = rng.normal(scale=0.002, size=(V, 3))
     reference = rng.normal(scale=0.001, size=(V, 3))
-    proj = _projectors(rays, data_term)
+    proj = projectors(rays, data_term)
     anchor = rays.closest_points()
-    solved = _offset_step(
+    solved = offset_step(
         problem, rest, start, reference, rays, proj, anchor, sigma, scale, weights, None, 1
     )
     # robust weights of the IRLS step, taken at the start

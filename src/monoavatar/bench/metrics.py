@@ -46,7 +46,7 @@ import numpy as np
 
 from monoavatar.core.errors import MonoavatarError
 from monoavatar.eval.alignment import SimilarityTransform
-from monoavatar.eval.surface import ICP_POINTS
+from monoavatar.eval.icp import ICP_POINTS
 from monoavatar.io.export_mesh import read_obj
 
 if TYPE_CHECKING:

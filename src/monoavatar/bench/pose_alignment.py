@@ -32,7 +32,8 @@ from numpy.typing import ArrayLike
 from monoavatar.body import lbs
 from monoavatar.eval._checks import FloatArray, as_faces, as_points
 from monoavatar.eval.alignment import SimilarityTransform
-from monoavatar.eval.surface import _subsample, _TriangleIndex, closest_points_on_mesh
+from monoavatar.eval.icp import subsample
+from monoavatar.eval.surface import TriangleIndex, closest_points_on_mesh
 
 __all__ = ["PoseAlignment", "align_pose_and_scale"]
 
@@ -159,8 +160,8 @@ def align_pose_and_scale(
     rest = torch.as_tensor(rest_np, dtype=dt)
     weights = torch.as_tensor(w_np, dtype=dt)
     joints = torch.as_tensor(j_np, dtype=dt)
-    src = torch.as_tensor(_subsample(rest_np.shape[0], max_points), dtype=torch.long)
-    tgt_sel = target[_subsample(target.shape[0], max_points)]
+    src = torch.as_tensor(subsample(rest_np.shape[0], max_points), dtype=torch.long)
+    tgt_sel = target[subsample(target.shape[0], max_points)]
     tgt_t = torch.as_tensor(tgt_sel, dtype=dt)
 
     target_normals = _face_normals(target, target_f)
@@ -174,7 +175,7 @@ def align_pose_and_scale(
     def current() -> torch.Tensor:
         return _posed(rest, weights, joints, parents, body_pose, log_scale, rotvec, translation)
 
-    target_index = _TriangleIndex(target[target_f])  # built once: the target does not move
+    target_index = TriangleIndex(target[target_f])  # built once: the target does not move
     for _ in range(iterations):
         with torch.no_grad():
             posed = current().numpy()

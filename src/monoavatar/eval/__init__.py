@@ -9,18 +9,20 @@ Units: metres in; surface errors in metres (``.mean_mm`` for millimetres), joint
 
 from monoavatar.eval.alignment import SimilarityTransform, align_similarity
 from monoavatar.eval.heatmap import error_to_rgb, write_heatmap_ply
+from monoavatar.eval.icp import (
+    AlignedSurfaceError,
+    IcpResult,
+    align_icp,
+    surface_error_after_alignment,
+)
 from monoavatar.eval.image import psnr, silhouette_iou
 from monoavatar.eval.joints import joint_errors, mpjpe, pa_mpjpe
 from monoavatar.eval.surface import (
-    AlignedSurfaceError,
     ClosestPoints,
-    IcpResult,
     SurfaceError,
-    align_icp,
     bidirectional_surface_error,
     closest_points_on_mesh,
     point_to_surface_distance,
-    surface_error_after_alignment,
 )
 
 __all__ = [

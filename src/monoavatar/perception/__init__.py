@@ -22,11 +22,11 @@ from monoavatar.perception.interfaces import (
     PoseResult,
 )
 from monoavatar.perception.observations import Observations, PrecomputedPerception
+from monoavatar.perception.people import detect_face
 from monoavatar.perception.pipeline import (
     Detectors,
     PerceptionSettings,
     default_detectors,
-    detect_face,
     perceive,
     perceive_image,
 )

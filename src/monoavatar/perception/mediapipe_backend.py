@@ -128,7 +128,7 @@ class MediaPipeFaceMesh(_Closing):
     model gives none per point).
 
     Faces far from the camera (full-body shots) are small; the pipeline therefore runs this on a
-    crop around the head (:func:`monoavatar.perception.pipeline.detect_face`).
+    crop around the head (:func:`monoavatar.perception.people.detect_face`).
 
     Args:
         max_faces: the most faces to return.
