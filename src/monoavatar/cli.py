@@ -21,8 +21,10 @@ from monoavatar import __version__
 from monoavatar.core.errors import MonoavatarError
 
 if TYPE_CHECKING:
+    from monoavatar.body import BodyModel
     from monoavatar.io.avatar_folder import Report
     from monoavatar.pipelines.reconstruct import ReconstructConfig, ReconstructResult
+    from monoavatar.pipelines.stages import Inputs
 
 
 class CliError(MonoavatarError):
@@ -287,6 +289,19 @@ def _print_summary(report: Report, out: Path) -> None:
 # -- fit-poses, fit-shape ---------------------------------------------------------------------
 
 
+def _inputs_and_body(args: argparse.Namespace) -> tuple[ReconstructConfig, Inputs, BodyModel]:
+    """The checked configuration, the read and perceived inputs, and the body model of a verb
+    with the input options (the output folder created)."""
+    from monoavatar.body import load_body_model
+    from monoavatar.pipelines.stages import load_inputs
+
+    config = _config(args)
+    config.validate()
+    args.output.mkdir(parents=True, exist_ok=True)
+    inputs = load_inputs(args.input, config.input)
+    return config, inputs, load_body_model(config.body_model)
+
+
 def _add_fit_poses(p: argparse.ArgumentParser) -> None:
     p.description = ("Fit one body shape and a 3D pose per key-frame to the person masks and 2D "
                      "keypoints of a video. Writes OUT/poses.npz (shape, poses (axis-angle "
@@ -299,14 +314,9 @@ def _add_fit_poses(p: argparse.ArgumentParser) -> None:
 def _run_fit_poses(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from monoavatar.body import load_body_model
-    from monoavatar.pipelines.stages import load_inputs, pose_stage
+    from monoavatar.pipelines.stages import pose_stage
 
-    config = _config(args)
-    config.validate()
-    args.output.mkdir(parents=True, exist_ok=True)
-    inputs = load_inputs(args.input, config.input)
-    body = load_body_model(config.body_model)
+    config, inputs, body = _inputs_and_body(args)
     track = pose_stage(body, inputs, config.pose, progress=config.progress)
     track.save(args.output / "poses.npz")
     good = ~track.failed
@@ -344,19 +354,14 @@ def _run_fit_shape(args: argparse.Namespace) -> int:
     import numpy as np
 
     from monoavatar.bench.ground_truth import ground_truth_error
-    from monoavatar.body import load_body_model
     from monoavatar.core.files import atomic_path
     from monoavatar.fit.pose import PoseTrack
     from monoavatar.io.avatar_folder import ShapeFile
     from monoavatar.io.export_mesh import write_obj
     from monoavatar.pipelines.reconstruct import shape_rounds
-    from monoavatar.pipelines.stages import StageTimer, load_inputs, pose_stage
+    from monoavatar.pipelines.stages import StageTimer, pose_stage
 
-    config = _config(args)
-    config.validate()
-    args.output.mkdir(parents=True, exist_ok=True)
-    inputs = load_inputs(args.input, config.input)
-    body = load_body_model(config.body_model)
+    config, inputs, body = _inputs_and_body(args)
     if args.poses is not None:
         track = PoseTrack.load(args.poses)
         if not np.array_equal(track.frame_indices, inputs.observations.frame_indices):
