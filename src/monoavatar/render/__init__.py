@@ -2,12 +2,14 @@
 
 Deferred, OpenDR-style: :func:`rasterize` fixes visibility in :class:`Fragments` (face ids,
 perspective-correct barycentrics, depth); :func:`interpolate` and the ``render_*`` functions
-compute per-pixel values from them, differentiably in the attribute values.
+compute per-pixel values from them, differentiably in the attribute values;
+:func:`render_flow` renders the optical flow of a moving mesh (Paper A's flow renderer).
 
 Conventions: OpenCV pinhole cameras (:class:`monoavatar.core.camera.PinholeCamera`), pixel centres
 at (col + 0.5, row + 0.5), metres, glTF UVs ((0, 0) = top-left of the texture, v down).
 """
 
+from monoavatar.render.flow import RenderedFlow, flow_energy, render_flow
 from monoavatar.render.interpolate import interpolate, interpolate_masked, scatter_masked
 from monoavatar.render.raster import Fragments, RasterSettings, rasterize
 from monoavatar.render.renders import (
@@ -35,14 +37,17 @@ from monoavatar.render.shading import (
 __all__ = [
     "SH_BAND_FACTORS",
     "Fragments",
+    "RenderedFlow",
     "RasterSettings",
     "SampledLighting",
     "directional_light_sh",
+    "flow_energy",
     "interpolate",
     "interpolate_masked",
     "rasterize",
     "render_depth",
     "render_face_labels",
+    "render_flow",
     "render_normals",
     "render_over_image",
     "render_silhouette",
