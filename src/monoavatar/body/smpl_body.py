@@ -18,7 +18,6 @@ SMPL's own frame is already Y-up and facing +Z, metres.
 from __future__ import annotations
 
 import copyreg
-import importlib
 import zipfile
 from pathlib import Path
 from typing import Any
@@ -75,6 +74,79 @@ class _Opaque:
 
 
 _SPARSE = {"csc_matrix", "csr_matrix", "coo_matrix"}
+MAX_DENSE = 50_000_000
+"""Elements a sparse matrix of a model file may have when made dense (SMPL's J_regressor has
+24 × 6890); a larger one is refused."""
+
+
+class _SparseState:
+    """Stand-in for a pickled scipy sparse matrix: keeps its state, never a scipy object (whose
+    unchecked index arrays could make ``toarray`` write out of bounds); :func:`_sparse_to_dense`
+    rebuilds it from checked arrays."""
+
+    kind = ""
+
+    def __init__(self, *args: object, **kwargs: object) -> None:
+        self.state: Any = None
+
+    def __setstate__(self, state: Any) -> None:
+        self.state = state
+
+
+_SPARSE_STANDINS = {name: type(f"_Sparse_{name}", (_SparseState,), {"kind": name})
+                    for name in _SPARSE}  # fmt: skip
+
+
+def _index_array(state: dict[str, Any], key: str, bound: int) -> np.ndarray:
+    """``state[key]`` as a 1-D int64 array with every entry in [0, bound)."""
+    value = np.asarray(state[key])
+    if value.ndim != 1 or value.dtype.kind not in "iu":
+        raise ValueError(f"{key} must be a 1-D integer array, got {value.dtype} {value.shape}")
+    value = value.astype(np.int64)
+    if value.size and (int(value.min()) < 0 or int(value.max()) >= bound):
+        raise ValueError(f"{key} has entries outside [0, {bound})")
+    return value
+
+
+def _sparse_to_dense(value: _SparseState) -> np.ndarray:
+    """The dense array of a pickled sparse matrix, rebuilt from validated ``data``, indices and
+    shape. Raises ValueError for anything malformed or out of range."""
+    state = value.state
+    if not isinstance(state, dict):
+        raise ValueError("no matrix state")
+    shape = state.get("_shape", state.get("shape"))
+    if (not isinstance(shape, tuple | list) or len(shape) != 2
+            or not all(isinstance(x, int | np.integer) for x in shape)):  # fmt: skip
+        raise ValueError(f"shape must be two integers, got {shape!r}")
+    rows, cols = int(shape[0]), int(shape[1])
+    if rows < 0 or cols < 0 or rows * cols > MAX_DENSE:
+        raise ValueError(f"shape {shape!r} out of range (at most {MAX_DENSE} elements)")
+    data = np.asarray(state["data"])
+    if data.ndim != 1 or data.dtype.kind not in "biuf":
+        raise ValueError(f"data must be a 1-D numeric array, got {data.dtype} {data.shape}")
+    dense = np.zeros((rows, cols), dtype=np.float64)
+    if value.kind == "coo_matrix":
+        if "coords" in state:  # scipy >= 1.13 keeps (row, col) as one tuple
+            coords = state["coords"]
+            if not isinstance(coords, tuple | list) or len(coords) != 2:
+                raise ValueError("coords must be (row, col)")
+            state = {"row": coords[0], "col": coords[1]}
+        row = _index_array(state, "row", rows)
+        col = _index_array(state, "col", cols)
+        if not len(row) == len(col) == len(data):
+            raise ValueError("row, col and data differ in length")
+        np.add.at(dense, (row, col), data.astype(np.float64))
+        return dense
+    major, minor = (cols, rows) if value.kind == "csc_matrix" else (rows, cols)
+    indptr = _index_array(state, "indptr", len(data) + 1)
+    indices = _index_array(state, "indices", minor)
+    if len(indptr) != major + 1 or indptr[0] != 0 or indptr[-1] != len(data) \
+            or len(indices) != len(data) or np.any(np.diff(indptr) < 0):  # fmt: skip
+        raise ValueError("indptr does not partition the entries")
+    lines = np.repeat(np.arange(major), np.diff(indptr))
+    r, c = (indices, lines) if value.kind == "csc_matrix" else (lines, indices)
+    np.add.at(dense, (r, c), data.astype(np.float64))
+    return dense
 
 
 def _smpl_globals(module: str, name: str) -> Any:
@@ -83,7 +155,7 @@ def _smpl_globals(module: str, name: str) -> Any:
     if module == "chumpy" or module.startswith("chumpy."):
         return _Opaque
     if module.startswith("scipy.sparse") and name in _SPARSE:
-        return getattr(importlib.import_module(module), name)
+        return _SPARSE_STANDINS[name]
     if (module, name) == ("copyreg", "_reconstructor"):
         return copyreg._reconstructor  # type: ignore[attr-defined]
     if (module, name) == ("builtins", "object"):
@@ -92,6 +164,12 @@ def _smpl_globals(module: str, name: str) -> Any:
 
 
 def _to_array(value: Any) -> Any:
+    if isinstance(value, _SparseState):
+        try:
+            return _sparse_to_dense(value)
+        except (KeyError, TypeError, ValueError, OverflowError) as exc:
+            raise BodyModelError(f"a sparse matrix in the model file is malformed: {exc}") \
+                from exc
     if isinstance(value, _Opaque):
         state = value.state
         if isinstance(state, dict) and "x" in state:
@@ -124,8 +202,6 @@ def load_smpl_arrays(path: str | Path) -> dict[str, np.ndarray]:
     out: dict[str, np.ndarray] = {}
     for key, value in raw.items():
         value = _to_array(value)
-        if hasattr(value, "toarray"):
-            value = value.toarray()
         if isinstance(value, np.ndarray):
             out[key] = value
     missing = [k for k in REQUIRED_KEYS if k not in out]
