@@ -434,3 +434,27 @@ def test_subset_poses_keypoints_and_points_as_the_whole_body_does(anny32: BodyMo
     np.testing.assert_allclose(keypoints, anny32.keypoints(plain.vertices), atol=5e-5)
     np.testing.assert_allclose(posed_joints, plain.joints, atol=2e-6)
     np.testing.assert_allclose(points, with_d.vertices[:, ids], atol=2e-6)
+
+
+def test_damaged_poses_files_are_refused_with_a_typed_error(tmp_path: Path) -> None:
+    from monoavatar.core.errors import InputFormatError, InputNotFoundError
+
+    rng = np.random.default_rng(2)
+    n = 3
+    track = PoseTrack(
+        body_model="anny:test", shape=np.zeros(4), poses=rng.normal(size=(n, 5, 3)),
+        translations=np.zeros((n, 3)), camera=_camera(), frame_indices=np.arange(n),
+        keypoint_error=np.zeros(n), silhouette_iou=np.ones(n), energy=np.zeros(n),
+        failed=np.zeros(n, bool), height=1.7, scale_known=False, seconds=1.0,
+    )  # fmt: skip
+    path = tmp_path / "poses.npz"
+    track.save(path)
+    whole = path.read_bytes()
+    path.write_bytes(whole[: len(whole) // 2])  # truncated, as by a crash or a full disk
+    with pytest.raises(InputFormatError, match="not a readable poses file"):
+        PoseTrack.load(path)
+    replace(track, failed=np.zeros(n + 1, bool)).save(path)
+    with pytest.raises(InputFormatError, match="frame counts disagree"):
+        PoseTrack.load(path)
+    with pytest.raises(InputNotFoundError):
+        PoseTrack.load(tmp_path / "missing.npz")

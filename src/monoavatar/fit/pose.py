@@ -22,6 +22,7 @@ from __future__ import annotations
 import json
 import math
 import time
+import zipfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -32,7 +33,7 @@ from tqdm import tqdm
 
 from monoavatar.body import BodyModel, lbs
 from monoavatar.core.camera import PinholeCamera
-from monoavatar.core.errors import MonoavatarError
+from monoavatar.core.errors import InputFormatError, InputNotFoundError, MonoavatarError
 from monoavatar.core.landmarks import MEDIAPIPE_MIRROR
 from monoavatar.core.threads import torch_threads
 from monoavatar.fit import pose_energy as pe
@@ -117,28 +118,48 @@ class PoseTrack:
 
     @staticmethod
     def load(path: str | Path) -> PoseTrack:
-        with np.load(path, allow_pickle=False) as data:
-            if str(data.get("format", "")) != FORMAT:
-                raise ValueError(f"{path} is not a monoavatar poses file")
-            w, h = (int(v) for v in data["image_size"])
-            camera = PinholeCamera(K=data["camera_K"], R=data["camera_R"], t=data["camera_t"],
-                                   width=w, height=h)  # fmt: skip
-            return PoseTrack(
-                body_model=str(data["body_model"]),
-                shape=data["shape"],
-                poses=data["poses"],
-                translations=data["translations"],
-                camera=camera,
-                frame_indices=data["frame_indices"],
-                keypoint_error=data["keypoint_error"],
-                silhouette_iou=data["silhouette_iou"],
-                energy=data["energy"],
-                failed=data["failed"],
-                height=float(data["height"]),
-                scale_known=bool(data["scale_known"]),
-                seconds=float(data["seconds"]),
-                timings=json.loads(str(data["timings"])),
-            )
+        """Read a ``poses.npz``.
+
+        Raises:
+            InputNotFoundError: no such file; InputFormatError: not a poses file of this
+            format, a key missing, or arrays whose frame counts disagree.
+        """
+        path = Path(path)
+        if not path.is_file():
+            raise InputNotFoundError(path, "no such poses file")
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                if str(data.get("format", "")) != FORMAT:
+                    raise InputFormatError(path, "not a monoavatar poses file")
+                w, h = (int(v) for v in data["image_size"])
+                camera = PinholeCamera(K=data["camera_K"], R=data["camera_R"],
+                                       t=data["camera_t"], width=w, height=h)  # fmt: skip
+                track = PoseTrack(
+                    body_model=str(data["body_model"]),
+                    shape=data["shape"],
+                    poses=data["poses"],
+                    translations=data["translations"],
+                    camera=camera,
+                    frame_indices=data["frame_indices"],
+                    keypoint_error=data["keypoint_error"],
+                    silhouette_iou=data["silhouette_iou"],
+                    energy=data["energy"],
+                    failed=data["failed"],
+                    height=float(data["height"]),
+                    scale_known=bool(data["scale_known"]),
+                    seconds=float(data["seconds"]),
+                    timings=json.loads(str(data["timings"])),
+                )
+        except InputFormatError:
+            raise
+        except (KeyError, ValueError, TypeError, OSError, EOFError, zipfile.BadZipFile) as exc:
+            raise InputFormatError(path, f"not a readable poses file ({exc!r})") from exc
+        k = len(track.frame_indices)
+        sizes = {"poses": track.poses.shape[:1], "translations": track.translations.shape[:1],
+                 "failed": track.failed.shape[:1], "energy": track.energy.shape[:1]}
+        if track.poses.ndim != 3 or any(n != (k,) for n in sizes.values()):
+            raise InputFormatError(path, f"frame counts disagree: {k} frame indices, {sizes}")
+        return track
 
 
 # -- initial placement ---------------------------------------------------------------------

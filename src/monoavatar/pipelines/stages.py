@@ -18,6 +18,7 @@ from __future__ import annotations
 import hashlib
 import json
 import time
+import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, replace
@@ -27,7 +28,7 @@ import numpy as np
 import torch
 
 from monoavatar.body import BodyModel, load_body_model
-from monoavatar.core.errors import MonoavatarError
+from monoavatar.core.errors import InputError, InputFormatError, MonoavatarError
 from monoavatar.datasets.synth_scene import SynthGroundTruth
 from monoavatar.fit.flow_refine import FlowRefineSettings, refine_poses_with_flow
 from monoavatar.fit.pose import PoseSettings, PoseTrack, evaluate_fit, fit_poses, refine_poses
@@ -225,9 +226,15 @@ def pose_stage(body: BodyModel, inputs: Inputs, settings: PoseSettings, *, poses
     entry = _stage_dir() / f"poses-{key}.npz"
     if entry.is_file():
         try:
-            return PoseTrack.load(entry)
-        except (OSError, ValueError, KeyError):
-            pass
+            cached = PoseTrack.load(entry)
+            if cached.body_model != body.identity or not np.array_equal(
+                    cached.frame_indices, inputs.observations.frame_indices):  # fmt: skip
+                raise InputFormatError(entry, "holds the poses of another input")
+            return cached
+        except InputError as exc:
+            warnings.warn(f"discarding a damaged cache entry and fitting again: {exc}",
+                          stacklevel=2)  # fmt: skip
+            entry.unlink(missing_ok=True)
     track = fit_poses(body, inputs.observations, settings, progress=progress)
     entry.parent.mkdir(parents=True, exist_ok=True)
     track.save(entry)
