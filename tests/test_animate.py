@@ -11,6 +11,7 @@ import torch
 from PIL import Image
 
 from monoavatar.body import Avatar, BodyModel, BodyModelError, lbs
+from monoavatar.cli import main
 from monoavatar.core.errors import InputFormatError, InputNotFoundError
 from monoavatar.io.gltf import dense_weights, limit_influences, split_uv_seams
 from monoavatar.pipelines.animate import (
@@ -181,7 +182,7 @@ def test_errors(anny64: BodyModel, avatar: Avatar, tmp_path: Path) -> None:
     np.savez(tmp_path / "few.npz", poses=np.zeros((3, 5, 3)))
     with pytest.raises(InputFormatError, match="5 joints"):
         animate(anny64, avatar, tmp_path / "few.npz", tmp_path / "x.glb")
-    with pytest.raises(ValueError, match="at least 2 frames"):
+    with pytest.raises(ValueError, match="2 to 36000 frames"):
         walk_motion(anny64, 1)
     other = Avatar("smpl:neutral", avatar.shape, avatar.shape_names, avatar.offsets)
     with pytest.raises(BodyModelError, match="smpl:neutral"):
@@ -209,3 +210,28 @@ def test_animated_glb_validates(anny64: BodyModel, avatar: Avatar, tmp_path: Pat
     )
     issues = validate(path)["issues"]
     assert issues["numErrors"] == 0 and issues["numWarnings"] == 0, issues["messages"]
+
+
+def test_outputs_that_would_destroy_or_mislead_are_refused(anny64: BodyModel, avatar: Avatar,
+                                                           tmp_path: Path, capsys) -> None:
+    """``animate -o`` must be a new .glb outside the avatar's own files (``--force`` replaces
+    an existing one); a motion of absurd length is refused before any work."""
+    folder = tmp_path / "out"
+    params = make_params(anny64.identity, avatar.shape, avatar.offsets.astype(np.float32),
+                         np.zeros((2, anny64.num_joints, 3)))  # fmt: skip
+    write_params_and_report(folder, params, make_report(2))
+    before = (folder / "params.npz").read_bytes()
+    for target, message in ((folder / "params.npz", ".glb"), (folder / "avatar.glb", "own file"),
+                            (tmp_path / "walk.txt", ".glb")):  # fmt: skip
+        assert main(["animate", str(folder), "-o", str(target), "--frames", "4"]) == 2
+        assert message in capsys.readouterr().err
+    assert (folder / "params.npz").read_bytes() == before
+    assert main(["animate", str(folder), "-o", str(tmp_path / "w.glb"), "--frames",
+                 "10000000"]) == 2  # fmt: skip
+    assert "2 to 36000 frames" in capsys.readouterr().err
+    existing = tmp_path / "walk.glb"
+    existing.write_bytes(b"mine")
+    assert main(["animate", str(folder), "-o", str(existing), "--frames", "4"]) == 2
+    assert "exists already" in capsys.readouterr().err and existing.read_bytes() == b"mine"
+    assert main(["animate", str(folder), "-o", str(existing), "--frames", "4", "--force"]) == 0
+    assert Glb.load(existing).gltf.animations

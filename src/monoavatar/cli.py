@@ -400,6 +400,7 @@ def _add_animate(p: argparse.ArgumentParser) -> None:
                    help="walk (default), wave, or a path to a params.npz / poses.npz")  # fmt: skip
     p.add_argument("--frames", type=int, default=None, help="frames of a built-in motion")
     p.add_argument("--fps", type=float, default=30.0, help="frames per second (default 30)")
+    p.add_argument("--force", action="store_true", help="replace an existing output file")
     p.set_defaults(run=_run_animate)
 
 
@@ -407,7 +408,7 @@ def _run_animate(args: argparse.Namespace) -> int:
     from monoavatar.pipelines.animate import animate_folder
 
     path = animate_folder(args.avatar, args.motion, args.output, frames=args.frames,
-                          fps=args.fps)  # fmt: skip
+                          fps=args.fps, overwrite=args.force)  # fmt: skip
     print(f"wrote {path}")
     return 0
 

@@ -123,3 +123,20 @@ def test_shape_file_round_trip(tmp_path: Path) -> None:
     np.savez(tmp_path / "other.npz", shape=shape.shape)
     with pytest.raises(AvatarFolderError, match="not a shape.npz"):
         ShapeFile.load(tmp_path / "other.npz")
+
+
+def test_a_dead_runs_staging_folder_is_cleaned_by_the_next_save(tmp_path: Path) -> None:
+    import os
+    import time
+
+    from monoavatar.io.avatar_folder import STALE_STAGING_S
+
+    out = tmp_path / "avatar"
+    (out / ".staging-dead").mkdir(parents=True)
+    (out / ".staging-dead" / "params.npz").write_bytes(b"half")
+    old = time.time() - STALE_STAGING_S - 60
+    os.utime(out / ".staging-dead", (old, old))
+    (out / ".staging-running").mkdir()  # another run's, still young: left alone
+    _folder(np.random.default_rng(5)).save(out)
+    assert not (out / ".staging-dead").exists()
+    assert (out / ".staging-running").exists()

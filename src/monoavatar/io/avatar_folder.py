@@ -32,6 +32,7 @@ import json
 import os
 import shutil
 import tempfile
+import time
 import zipfile
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
@@ -46,6 +47,7 @@ from monoavatar.core.files import atomic_path, atomic_write_text
 from monoavatar.io.export_mesh import read_obj, write_obj
 
 __all__ = [
+    "AVATAR_FILES",
     "FORMAT",
     "AvatarFolder",
     "AvatarFolderError",
@@ -61,6 +63,13 @@ __all__ = [
 
 FORMAT = "monoavatar-reconstruction-1"
 """Format of ``params.npz`` and ``report.json``; a folder of another format is refused."""
+
+AVATAR_FILES = ("avatar.glb", "avatar.obj", "avatar.mtl", "texture.png", "params.npz",
+                "report.json")  # fmt: skip
+"""The files of an avatar folder (besides ``preview/``)."""
+
+STALE_STAGING_S = 600.0
+"""A staging folder older than this (seconds) is a dead run's and is removed by the next save."""
 
 
 class AvatarFolderError(InputFormatError):
@@ -358,6 +367,9 @@ class AvatarFolder:
 
         out = Path(folder)
         out.mkdir(parents=True, exist_ok=True)
+        for old in out.glob(".staging-*"):  # left by a run that was killed
+            if time.time() - old.stat().st_mtime > STALE_STAGING_S:
+                shutil.rmtree(old, ignore_errors=True)
         stage = Path(tempfile.mkdtemp(dir=out, prefix=".staging-"))
         try:
             names: list[str] = []

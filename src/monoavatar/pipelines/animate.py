@@ -18,12 +18,19 @@ import numpy as np
 import torch
 
 from monoavatar.body import Avatar, BodyModel, BodyModelError, lbs, load_body_model
-from monoavatar.core.errors import InputFormatError, InputNotFoundError
-from monoavatar.io.avatar_folder import AvatarFolder
+from monoavatar.core.errors import (
+    InputError,
+    InputFormatError,
+    InputNotFoundError,
+    MonoavatarError,
+)
+from monoavatar.io.avatar_folder import AVATAR_FILES, AvatarFolder
 from monoavatar.io.gltf import PoseAnimation, skinned_mesh_from_body, write_animated_glb
 
 __all__ = [
+    "MAX_FRAMES",
     "MOTIONS",
+    "MotionError",
     "animate",
     "animate_folder",
     "load_motion",
@@ -35,15 +42,21 @@ __all__ = [
 
 #: Names of the built-in motions.
 MOTIONS: tuple[str, ...] = ("walk", "wave")
+MAX_FRAMES = 36_000
+"""The longest built-in motion, in frames (20 minutes at 30 fps)."""
+
+
+class MotionError(MonoavatarError, ValueError):
+    """A motion that cannot be made: too few or too many frames, a bad frame rate."""
 
 
 def _phase(frames: int, fps: float, frequency: float) -> tuple[np.ndarray, np.ndarray]:
     """Times (N,) in seconds and a phase (N,) in radians with a whole number of cycles (at
     least one) over the clip, the cycle rate as close to ``frequency`` Hz as that allows."""
-    if frames < 2:
-        raise ValueError(f"a motion needs at least 2 frames, got {frames}")
-    if fps <= 0:
-        raise ValueError(f"fps must be positive, got {fps}")
+    if not 2 <= frames <= MAX_FRAMES:
+        raise MotionError(f"a motion needs 2 to {MAX_FRAMES} frames, got {frames}")
+    if not 0 < fps <= 1000:
+        raise MotionError(f"fps must be in (0, 1000], got {fps}")
     time = np.arange(frames) / fps
     duration = frames / fps
     cycles = max(1, round(duration * frequency))
@@ -252,17 +265,29 @@ def animate_folder(
     body: BodyModel | None = None,
     frames: int | None = None,
     fps: float = 30.0,
+    overwrite: bool = False,
 ) -> Path:
     """:func:`animate` the avatar of a ``reconstruct`` output folder
     (:class:`~monoavatar.io.avatar_folder.AvatarFolder`: its shape, offsets and texture).
 
     ``body`` None loads the shipped model named by the folder's ``body_model`` (Anny).
 
+    ``out_path`` must end in ``.glb``, must not be one of the avatar folder's own files, and
+    must not exist unless ``overwrite``.
+
     Raises:
         InputNotFoundError: no such folder, or a file of it missing.
+        InputError: an output path that is refused (above).
         AvatarFolderError: a file of another format or malformed.
         BodyModelError: the avatar does not fit the body model.
     """
+    out = Path(out_path)
+    if out.suffix.lower() != ".glb":
+        raise InputError(out, "the animation is written as glTF binary: give a .glb path")
+    if out.resolve().parent == Path(avatar_dir).resolve() and out.name in AVATAR_FILES:
+        raise InputError(out, "would overwrite the avatar folder's own file; write elsewhere")
+    if out.exists() and not overwrite:
+        raise InputError(out, "exists already (pass overwrite=True, or --force, to replace it)")
     folder = AvatarFolder.load(avatar_dir, mesh=False)
     params = folder.params
     if body is None:

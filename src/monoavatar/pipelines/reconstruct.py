@@ -259,12 +259,26 @@ def reconstruct(input_path: str | Path, out_dir: str | Path,
         MonoavatarError (PipelineError, InputError, NoPersonError, PoseFitError, …): with a
         message for the user.
     """
-    from monoavatar.io.gltf import skinned_mesh_from_body
-
     config = config or ReconstructConfig()
     config.validate()
     out = Path(out_dir)
+    created = not out.exists()
     _check_output(out)
+    try:
+        return _reconstruct(input_path, out, config)
+    except BaseException:
+        if created:  # nothing of this run is left behind: the folder it made, if still empty
+            try:
+                out.rmdir()
+            except OSError:
+                pass
+        raise
+
+
+def _reconstruct(input_path: str | Path, out: Path, config: ReconstructConfig
+                 ) -> ReconstructResult:  # fmt: skip
+    from monoavatar.io.gltf import skinned_mesh_from_body
+
     timer = StageTimer()
     start = time.perf_counter()
     with warnings.catch_warnings(record=True) as records:
