@@ -33,6 +33,16 @@ def _cv_matrices(dims: int, accel_var: float) -> tuple[np.ndarray, np.ndarray]:
     return F, Q
 
 
+def _update(cov: np.ndarray, innovation: np.ndarray, measure_var: float
+            ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """The Kalman update of N (6, 6) covariances on (position, velocity) states measured in
+    their first three components: the state corrections (N, 6) and the new covariances."""
+    H = np.hstack([np.eye(3), np.zeros((3, 3))])
+    S = H @ cov @ H.T + measure_var * np.eye(3)
+    K = cov @ H.T @ np.linalg.inv(S)
+    return np.einsum("nij,nj->ni", K, innovation), (np.eye(6) - K @ H) @ cov
+
+
 @dataclass
 class TranslationFilter:
     """Linear Kalman filter on (N, 3) translations (one filter per row, e.g. one person).
@@ -67,12 +77,8 @@ class TranslationFilter:
     def update(self, position: np.ndarray) -> TranslationFilter:
         """Fold in a measured position (N, 3)."""
         z = np.atleast_2d(np.asarray(position, dtype=np.float64))
-        H = np.hstack([np.eye(3), np.zeros((3, 3))])
-        S = H @ self.cov @ H.T + self.measure_var * np.eye(3)
-        K = self.cov @ H.T @ np.linalg.inv(S)
-        mean = self.mean + np.einsum("nij,nj->ni", K, z - self.mean @ H.T)
-        cov = (np.eye(6) - K @ H) @ self.cov
-        return TranslationFilter(mean, cov, self.accel_var, self.measure_var)
+        delta, cov = _update(self.cov, z - self.mean[:, :3], self.measure_var)
+        return TranslationFilter(self.mean + delta, cov, self.accel_var, self.measure_var)
 
     @property
     def position(self) -> np.ndarray:
@@ -117,13 +123,9 @@ class RotationFilter:
         """Fold in measured rotations (J, 3) axis-angle radians."""
         Z = Rotation.from_rotvec(np.atleast_2d(axis_angle)).as_matrix()
         innovation = Rotation.from_matrix(Z @ np.transpose(self.rotation, (0, 2, 1))).as_rotvec()
-        H = np.hstack([np.eye(3), np.zeros((3, 3))])
-        S = H @ self.cov @ H.T + self.measure_var * np.eye(3)
-        K = self.cov @ H.T @ np.linalg.inv(S)
-        delta = np.einsum("jik,jk->ji", K, innovation)
+        delta, cov = _update(self.cov, innovation, self.measure_var)
         rotation = Rotation.from_rotvec(delta[:, :3]).as_matrix() @ self.rotation
-        return RotationFilter(rotation, self.velocity + delta[:, 3:],
-                              (np.eye(6) - K @ H) @ self.cov, self.accel_var,
+        return RotationFilter(rotation, self.velocity + delta[:, 3:], cov, self.accel_var,
                               self.measure_var)  # fmt: skip
 
     @property

@@ -91,13 +91,11 @@ def flow_energy(rendered: RenderedFlow, observed: Tensor | np.ndarray,
         () the energy, pixels², differentiable through ``rendered.flow``.
     """
     flow = rendered.flow
-    obs = torch.as_tensor(np.asarray(observed) if not isinstance(observed, Tensor) else observed,
-                          dtype=flow.dtype)  # fmt: skip
+    obs = torch.as_tensor(observed, dtype=flow.dtype)
     if obs.shape != flow.shape:
         raise ValueError(f"observed flow must have shape {tuple(flow.shape)}, "
                          f"got {tuple(obs.shape)}")  # fmt: skip
     mask = rendered.mask
     if valid is not None:
-        mask = mask & torch.as_tensor(np.asarray(valid) if not isinstance(valid, Tensor)
-                                      else valid, dtype=torch.bool)  # fmt: skip
+        mask = mask & torch.as_tensor(valid, dtype=torch.bool)
     return ((obs - flow)[mask] ** 2).sum()
