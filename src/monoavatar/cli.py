@@ -61,7 +61,8 @@ def _add_synth(p: argparse.ArgumentParser) -> None:
                      "camera, ground-truth meshes and parameters, and a contact sheet. The same "
                      "seed gives the same scene.")  # fmt: skip
     p.add_argument("kind", choices=KINDS, help="turnaround: one turn in an A-pose; motion: "
-                   "walking, waving, jogging in place; photo: single images, one person each")
+                   "walking, waving, jogging in place; walk, jog: along an oblique path; "
+                   "photo: single images, one person each")
     p.add_argument("-o", "--output", required=True, type=Path, help="new or empty folder")
     _option(p, "--frames", SynthConfig, "frames", "number of frames", type=int)
     _option(p, "--seed", SynthConfig, "seed", "random seed", type=int)

@@ -284,7 +284,7 @@ def test_refit_recovers_a_back_view_fit_stalled_far_off(anny32: BodyModel) -> No
     start[0, 0, 1] += np.radians(120.0)
     p0, t0, e0 = pe.fit_window(ctx, sub, frame, start, np.zeros((1, 3)), None)
     assert _heading_error_deg(p0, poses)[0] > 45.0  # measured 78°: the local fit stalls
-    p, _, e = posefit._refit_frame(ctx, sub, frame, p0[0], t0[0], float(e0[0]))
+    p, _, e = posefit.refit_frame(ctx, sub, frame, p0[0], t0[0], float(e0[0]))
     assert _heading_error_deg(p[None], poses)[0] < 20.0  # measured 13°
     assert e < 0.7 * e0[0]
 

@@ -209,3 +209,18 @@ def test_head_crop_maps_back_exactly(astronaut: np.ndarray) -> None:
     offset = (crop[0][:, :2] - whole[0][:, :2]).mean(axis=0)
     np.testing.assert_allclose(offset, [0.0, 0.0], atol=1.0)
     assert np.median(np.linalg.norm(crop[0][:, :2] - whole[0][:, :2], axis=1)) < 2.5
+
+
+def test_world_landmarks_are_metric_hip_centred_and_upright(
+    astronaut_observations: Observations,
+) -> None:
+    world = astronaut_observations.world_keypoints
+    assert world is not None and world.shape == (1, 33, 4)
+    w = world[0]
+    hips = 0.5 * (w[LM["left_hip"], :3] + w[LM["right_hip"], :3])
+    np.testing.assert_allclose(hips, 0.0, atol=0.02)  # origin between the hips
+    # metres, camera axes (y down): the shoulders 0.3-0.7 m above the hips, 0.25-0.5 m apart,
+    # the person's left on the image's right as in the 2D landmarks
+    left, right = w[LM["left_shoulder"], :3], w[LM["right_shoulder"], :3]
+    assert 0.3 < -(0.5 * (left + right))[1] < 0.7
+    assert 0.25 < np.linalg.norm(left - right) < 0.5 and left[0] > right[0]

@@ -411,12 +411,14 @@ def test_observations_round_trip(tmp_path: Path) -> None:
         timestamps=np.array([0.1, 0.3]),
         flow=rng.random((1, 5, 7, 2)).astype(np.float32),
         keypoint_source="test",
+        world_keypoints=np.where(np.arange(2)[:, None, None] == 0, np.nan,
+                                 rng.random((2, 33, 4))).astype(np.float32),
     )
     path = tmp_path / "obs.npz"
     obs.save(path)
     back = Observations.load(path)
     for name in ("masks", "keypoints", "face", "no_person", "multiple_people",
-                 "frame_indices", "timestamps", "flow"):
+                 "frame_indices", "timestamps", "flow", "world_keypoints"):
         np.testing.assert_array_equal(getattr(back, name), getattr(obs, name))
     np.testing.assert_array_equal(back.camera.K, obs.camera.K)
     assert back.keypoint_source == "test" and back.image_size == (5, 7)

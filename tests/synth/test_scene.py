@@ -161,3 +161,33 @@ def test_cli_photo_and_motion(tmp_path, capsys):
     scene = json.loads((tmp_path / "p" / "scene.json").read_text())
     assert len(scene["subjects"]) == 2  # one person per photo
     assert not (tmp_path / "p" / "video.mp4").exists()
+
+
+@pytest.mark.parametrize("kind", ["walk", "jog"])
+def test_gait_moves_along_an_oblique_path_in_view_with_camera_frame_joints(anny_local, kind,
+                                                                          tmp_path):  # fmt: skip
+    out = tmp_path / kind
+    generate(out, SynthConfig(kind=kind, frames=40, seed=5, noise="none", **SMALL),
+             body=anny_local, progress=False)  # fmt: skip
+    params = np.load(out / "gt" / "params.npz")
+    camera = PinholeCamera.load_json(out / "camera.json")
+    joints, joints_cam = params["joints"], params["joints_camera"]
+    # the camera-frame joints are the world joints moved by the camera's extrinsics
+    np.testing.assert_allclose(joints_cam, joints @ camera.R.T + camera.t, atol=1e-9)
+    # and the world joints are the body model's, posed by the scene's parameters
+    with torch.no_grad():
+        posed = anny_local(shape=torch.as_tensor(params["shapes"][:1]).expand(40, -1),
+                           pose=torch.as_tensor(params["poses"], dtype=anny_local.dtype),
+                           translation=torch.as_tensor(params["translations"],
+                                                       dtype=anny_local.dtype))  # fmt: skip
+    np.testing.assert_allclose(joints, posed.joints.double().numpy(), atol=1e-5)
+    # the person travels 35-65 degrees off the camera's axis (towards or away from it)
+    travel = params["translations"][-1] - params["translations"][0]
+    travel_cam = camera.R @ travel
+    off_axis = np.degrees(np.arctan2(abs(travel_cam[0]), abs(travel_cam[2])))
+    assert 25.0 < off_axis < 75.0 and np.linalg.norm(travel) > 0.2
+    # every frame shows the whole person: the mask stays off the image border
+    for i in (0, 20, 39):
+        mask = np.asarray(Image.open(out / "masks" / f"{i:06d}.png")) > 0
+        assert mask.sum() > 200
+        assert not (mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any())

@@ -7,11 +7,13 @@ angle swings a hanging limb forward; about +Z by a positive angle raises the lef
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from monoavatar.body.model import BodyModel
 
 
-def _set(pose: np.ndarray, body: BodyModel, joint: str, axis: int, angle: np.ndarray) -> None:
+def _set(pose: np.ndarray, body: BodyModel, joint: str, axis: int,
+         angle: np.ndarray | float) -> None:
     pose[:, body.joint_index(joint), axis] += angle
 
 
@@ -77,3 +79,65 @@ def standing_pose(body: BodyModel, rng: np.random.Generator) -> np.ndarray:
     pose[body.joint_index(f"hip_{leg}"), 0] += -rng.uniform(0.0, 0.3)
     pose[body.joint_index(f"knee_{leg}"), 0] += rng.uniform(0.0, 0.4)
     return pose
+
+
+#: Gait styles of :func:`gait`: (cycle frequency Hz, hip swing rad, knee flexion rad, arm swing
+#: rad, elbow bend rad, vertical bounce m, natural speed m/s).
+GAITS: dict[str, tuple[float, float, float, float, float, float, float]] = {
+    "walk": (0.9, 0.40, 0.70, 0.30, 0.35, 0.015, 1.1),
+    "jog": (1.4, 0.60, 1.30, 0.55, 1.30, 0.040, 2.2),
+}
+
+
+def gait(body: BodyModel, frames: int, rng: np.random.Generator, fps: float = 30.0,
+         style: str = "walk", path_length: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+    """Walking or jogging along a straight path at an oblique angle to the camera (which looks
+    along −Z at the origin from +Z).
+
+    The heading (the direction the body faces and travels, about +Y) is 35–65° from the
+    camera's axis, towards or away from the camera, left or right, drawn from ``rng``; the
+    path, centred at the origin, is at most ``path_length`` metres long (the speed is the
+    style's natural one or slower, so that it stays in view); amplitudes vary by ±15 %.
+
+    Returns:
+        poses (N, J, 3) axis-angle radians and translations (N, 3) metres.
+    """
+    if style not in GAITS:
+        raise ValueError(f"gait style must be one of {sorted(GAITS)}, got {style!r}")
+    freq, hip, knee, arm, elbow, bounce, speed = GAITS[style]
+    jitter = rng.uniform(0.85, 1.15, 5)
+    hip, knee, arm, bounce = hip * jitter[0], knee * jitter[1], arm * jitter[2], bounce * jitter[3]
+    freq *= jitter[4]
+    time = np.arange(frames) / fps
+    phi = 2 * np.pi * freq * time + rng.uniform(0, 2 * np.pi)
+    s = np.sin(phi)
+    pose = np.zeros((frames, body.num_joints, 3))
+    _set(pose, body, "hip_l", 0, -hip * s)
+    _set(pose, body, "hip_r", 0, hip * s)
+    _set(pose, body, "knee_l", 0, 0.1 + knee * np.clip(np.sin(phi + 0.6), 0.0, None))
+    _set(pose, body, "knee_r", 0, 0.1 + knee * np.clip(-np.sin(phi + 0.6), 0.0, None))
+    _set(pose, body, "ankle_l", 0, -0.15 * np.clip(np.sin(phi + 0.6), 0.0, None))
+    _set(pose, body, "ankle_r", 0, -0.15 * np.clip(-np.sin(phi + 0.6), 0.0, None))
+    _set(pose, body, "shoulder_l", 2, -0.6 + rng.uniform(-0.1, 0.1))  # arms down at the sides
+    _set(pose, body, "shoulder_r", 2, 0.6 + rng.uniform(-0.1, 0.1))
+    _set(pose, body, "shoulder_l", 0, arm * s)
+    _set(pose, body, "shoulder_r", 0, -arm * s)
+    _set(pose, body, "elbow_l", 0, -elbow - 0.2 * arm * np.clip(-s, 0.0, None))
+    _set(pose, body, "elbow_r", 0, -elbow - 0.2 * arm * np.clip(s, 0.0, None))
+    _set(pose, body, "spine2", 1, -0.08 * s)
+    _set(pose, body, "spine1", 0, 0.1 if style == "jog" else 0.03)  # leaning into the run
+    heading = np.deg2rad(rng.uniform(35.0, 65.0)) * rng.choice([-1.0, 1.0])
+    if rng.random() < 0.5:
+        heading += np.pi  # walking away from the camera
+    sway = np.zeros((frames, 3))
+    sway[:, 1] = 0.08 * s
+    sway[:, 2] = 0.03 * np.cos(phi)
+    root = Rotation.from_rotvec([0.0, heading, 0.0]) * Rotation.from_rotvec(sway)
+    pose[:, 0] = root.as_rotvec()
+    direction = np.array([np.sin(heading), 0.0, np.cos(heading)])
+    duration = frames / fps
+    length = min(path_length, speed * duration)
+    travelled = length * (time / max(duration, 1e-9) - 0.5)
+    translations = travelled[:, None] * direction
+    translations[:, 1] = bounce * np.abs(np.cos(phi))
+    return pose, translations

@@ -406,7 +406,7 @@ def _fit_poses(body: BodyModel, obs: Observations, settings: PoseSettings,
         reference = float(np.median(history)) if history else float(np.median(e_out))
         bad = np.flatnonzero(e_out > settings.refit_factor * max(reference, 0.5))
         for k in bad:
-            p_out[k], t_out[k], e_out[k] = _refit_frame(
+            p_out[k], t_out[k], e_out[k] = refit_frame(
                 ctx, sub, pe.frame_slice(frames, k), p_out[k], t_out[k], float(e_out[k])
             )
         for k, i in enumerate(window):
@@ -525,7 +525,7 @@ def _refine_poses(body: BodyModel, obs: Observations, track: PoseTrack,
     )  # fmt: skip
 
 
-def _refit_frame(ctx: pe.EnergyContext, sub: pe.Subset, frame: pe.Frames, pose: np.ndarray,
+def refit_frame(ctx: pe.EnergyContext, sub: pe.Subset, frame: pe.Frames, pose: np.ndarray,
                  trans: np.ndarray, value: float) -> tuple[np.ndarray, np.ndarray, float]:
     """Try alternative starts for one frame: turned by half a turn about the vertical (also
     with the keypoints' left and right exchanged), the keypoints exchanged alone, and turned by

@@ -22,10 +22,14 @@ class PoseResult:
         keypoints: (33, 3) float32 x px, y px, confidence in [0, 1], mediapipe order.
         segmentation: (H, W) float32 person probability in [0, 1], or None when the detector
             gives no mask.
+        world: (33, 4) float32 metric 3D landmarks x, y, z metres relative to the midpoint of
+            the hips, camera axes (x right, y down, z forward), and confidence; None when the
+            detector gives none.
     """
 
     keypoints: np.ndarray
     segmentation: np.ndarray | None = None
+    world: np.ndarray | None = None
 
 
 @runtime_checkable

@@ -83,7 +83,8 @@ class MediaPipePose(_Closing):
         return self._name
 
     def detect(self, image: np.ndarray) -> PoseResult | None:
-        """image: (H, W, 3) uint8 RGB → 33 landmarks (x px, y px, visibility) and the mask."""
+        """image: (H, W, 3) uint8 RGB → 33 landmarks (x px, y px, visibility), their metric 3D
+        world positions and the mask."""
         result = self._run(image)
         if result.pose_landmarks is None:
             return None
@@ -96,7 +97,13 @@ class MediaPipePose(_Closing):
         mask = None
         if self._segmentation and result.segmentation_mask is not None:
             mask = np.clip(np.asarray(result.segmentation_mask, dtype=np.float32), 0.0, 1.0)
-        return PoseResult(keypoints=keypoints, segmentation=mask)
+        world = None
+        if result.pose_world_landmarks is not None:
+            world = np.array([[lm.x, lm.y, lm.z, lm.visibility]
+                              for lm in result.pose_world_landmarks.landmark],
+                             dtype=np.float32).reshape(NUM_BODY_LANDMARKS, 4)  # fmt: skip
+            world[:, 3] = np.clip(world[:, 3], 0.0, 1.0)
+        return PoseResult(keypoints=keypoints, segmentation=mask, world=world)
 
 
 class MediaPipeSelfieSegmenter(_Closing):

@@ -45,6 +45,10 @@ class Observations:
         timestamps: (N,) float64 seconds (NaN when unknown).
         flow: (N-1, H, W, 2) float32 forward optical flow in pixels, or None: the content at
             pixel centre p of frame t is at p + flow[t, row, col] in frame t+1.
+        world_keypoints: (N, 33, 4) float32 or None: the detector's metric 3D body landmarks
+            (mediapipe's world landmarks) x, y, z metres relative to the midpoint of the hips,
+            in the camera's axes (x right, y down, z forward), and their confidence; NaN rows
+            where absent.
         keypoint_source: what produced the keypoints, e.g. ``"mediapipe-pose"``,
             ``"openpose-coco18"`` (joint definitions differ slightly between detectors, e.g.
             the hips).
@@ -60,6 +64,7 @@ class Observations:
     timestamps: np.ndarray
     flow: np.ndarray | None = None
     keypoint_source: str = "mediapipe-pose"
+    world_keypoints: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         masks = np.asarray(self.masks, dtype=bool)
@@ -91,6 +96,12 @@ class Observations:
                 f"Observations: camera is for {self.camera.width}x{self.camera.height} images, "
                 f"masks are {w}x{h}"
             )
+        if self.world_keypoints is not None:
+            world = np.asarray(self.world_keypoints, dtype=np.float32)
+            if world.shape != (n, NUM_BODY_LANDMARKS, 4):
+                raise ValueError(f"Observations.world_keypoints must have shape "
+                                 f"{(n, NUM_BODY_LANDMARKS, 4)}, got {world.shape}")  # fmt: skip
+            object.__setattr__(self, "world_keypoints", world)
         if self.flow is not None:
             flow = np.asarray(self.flow, dtype=np.float32)
             if flow.shape != (max(n - 1, 0), h, w, 2):
@@ -147,6 +158,8 @@ class Observations:
         }
         if self.flow is not None:
             arrays["flow"] = self.flow
+        if self.world_keypoints is not None:
+            arrays["world_keypoints"] = self.world_keypoints
         buffer = io.BytesIO()
         np.savez_compressed(buffer, **arrays)
         atomic_write_bytes(Path(path), buffer.getvalue())
@@ -180,6 +193,8 @@ class Observations:
                     timestamps=data["timestamps"],
                     flow=data["flow"] if "flow" in data.files else None,
                     keypoint_source=str(data["keypoint_source"]),
+                    world_keypoints=(data["world_keypoints"]
+                                     if "world_keypoints" in data.files else None),
                 )
             except (KeyError, OSError, EOFError, zipfile.BadZipFile) as exc:
                 raise ValueError(f"{path}: not an observations file ({exc})") from exc

@@ -245,6 +245,7 @@ class _Raw:
     face: np.ndarray
     no_person: np.ndarray
     multiple_people: np.ndarray
+    world: np.ndarray
 
 
 def _run(
@@ -260,6 +261,7 @@ def _run(
     if pre.masks is None and dets.segmenter is None and dets.pose is None:
         raise ValueError("perception needs a segmenter or a pose detector that gives masks")
     keypoints = np.zeros((n, NUM_BODY_LANDMARKS, 3), dtype=np.float32)
+    world = np.full((n, NUM_BODY_LANDMARKS, 4), np.nan, dtype=np.float32)
     found = np.zeros(n, dtype=bool)
     multiple = np.zeros(n, dtype=bool)
     min_area = max(1, int(settings.min_mask_fraction * h * w))
@@ -280,6 +282,8 @@ def _run(
         elif result is not None:
             keypoints[i] = result.keypoints
             found[i] = True
+            if result.world is not None:
+                world[i] = result.world
         if probs is not None:
             if dets.segmenter is not None:
                 prob = dets.segmenter.segment(image)
@@ -313,6 +317,7 @@ def _run(
                 again = dets.pose.detect(people.hide_people(image, choice.others, mask))
                 if again is not None:
                     keypoints[i] = again.keypoints
+                    world[i] = again.world if again.world is not None else np.nan
                 else:
                     found[i] = False
             if settings.grabcut:
@@ -332,10 +337,11 @@ def _run(
     no_person = ~found
     keypoints[no_person] = 0.0
     face[no_person] = np.nan
+    world[no_person] = np.nan
     if pre.multiple_people is not None:
         multiple |= np.asarray(pre.multiple_people, dtype=bool)
     multiple &= found
-    return _Raw(masks, keypoints, face, no_person, multiple)
+    return _Raw(masks, keypoints, face, no_person, multiple, world)
 
 
 def _check_precomputed(frames: Frames, pre: PrecomputedPerception) -> None:
@@ -399,7 +405,7 @@ def perceive(
     names: object = detectors.names() if detectors is not None else _default_names(settings, pre)
     perception_settings = {k: v for k, v in asdict(settings).items() if k != "flow"}
     key = cache_mod.make_key(
-        "observations", frames.digest, perception_settings, names, pre.digest()
+        "observations-2", frames.digest, perception_settings, names, pre.digest()
     )
     folder = cache_mod.perception_cache_dir(cache_dir)
     entry = folder / f"{key}.npz"
@@ -420,6 +426,7 @@ def perceive(
                 no_person=raw.no_person, multiple_people=raw.multiple_people, camera=camera,
                 frame_indices=frames.indices, timestamps=frames.timestamps,
                 keypoint_source=source,
+                world_keypoints=raw.world if np.isfinite(raw.world).any() else None,
             )
             if use_cache:
                 obs.save(entry)
@@ -428,7 +435,7 @@ def perceive(
                 masks=cached.masks, keypoints=cached.keypoints, face=cached.face,
                 no_person=cached.no_person, multiple_people=cached.multiple_people,
                 camera=camera, frame_indices=frames.indices, timestamps=frames.timestamps,
-                keypoint_source=cached.keypoint_source,
+                keypoint_source=cached.keypoint_source, world_keypoints=cached.world_keypoints,
             )
         flow = None
         if settings.flow is not None and len(frames) > 1:

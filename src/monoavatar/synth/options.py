@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-KINDS: tuple[str, ...] = ("turnaround", "motion", "photo")
+KINDS: tuple[str, ...] = ("turnaround", "motion", "walk", "jog", "photo")
 CLOTHING: tuple[str, ...] = (
     "minimal", "tight", "tshirt-shorts", "longsleeve-trousers", "loose", "skirt",
 )  # fmt: skip

@@ -4,14 +4,15 @@ write everything a test, benchmark or training run needs, described in ``scene.j
 Output folder::
 
     frames/000000.png ...      RGB frames (with the requested noise, blur, JPEG artefacts)
-    video.mp4                  the frames as a video (turnaround, motion)
+    video.mp4                  the frames as a video (all kinds but photo)
     masks/000000.png ...       exact ground-truth person masks (0 / 255)
     keypoints.npz              keypoints (N, 33, 3): x px, y px, visibility (mediapipe order);
                                keypoints_3d (N, 33, 3) world metres; observed (N, 33, 3) jittered
     camera.json                K, R, t, width, height (OpenCV convention, metres)
     gt/subject_000/canonical.obj (+ .mtl, .png)   clothed canonical mesh with UVs and texture
     gt/posed/000000.ply        posed ground-truth meshes (every ``posed_every``-th frame)
-    gt/params.npz              shape, poses, translations, displacements, lighting (see scene.json)
+    gt/params.npz              shape, poses, translations, posed joints (world and camera
+                               frame), displacements, lighting (see scene.json)
     preview/contact_sheet.png  a grid of frames
     scene.json                 all of the above with units
 
@@ -34,7 +35,7 @@ from PIL import Image
 from tqdm import tqdm
 
 from monoavatar.body import MEDIAPIPE_LANDMARKS, BodyModel, lbs, load_body_model
-from monoavatar.body.motion import free_motion, standing_pose, turnaround
+from monoavatar.body.motion import free_motion, gait, standing_pose, turnaround
 from monoavatar.core.camera import PinholeCamera
 from monoavatar.core.errors import MonoavatarError
 from monoavatar.io.export_mesh import write_mp4, write_obj, write_ply
@@ -96,13 +97,18 @@ class SceneSummary:
 
 
 def make_camera(
-    rng: np.random.Generator, width: int, height: int, reach: float = 1.15
+    rng: np.random.Generator, width: int, height: int, reach: float = 1.15,
+    distance_range: tuple[float, float] = (2.2, 3.0), path: np.ndarray | None = None,
 ) -> PinholeCamera:
-    """A fixed camera 2.2–3.0 m in front of the person (who faces +Z at the origin), at about
-    chest height, with a focal length that keeps everything within ``reach`` metres of the
-    origin (vertically) inside the image with a margin."""
-    distance = rng.uniform(2.2, 3.0)
-    focal = 0.44 * height * (distance - 0.4) / reach
+    """A fixed camera ``distance_range`` metres in front of the person (who faces +Z at the
+    origin), at about chest height, with a focal length that keeps everything within ``reach``
+    metres of the origin (vertically) inside the image with a margin, and, when the person moves
+    along ``path`` (N, 3) metres, everything within 0.5 m of it (sideways) too."""
+    distance = rng.uniform(*distance_range)
+    path = np.zeros((1, 3)) if path is None else np.asarray(path, dtype=np.float64)
+    depth = distance - path[:, 2] - 0.4  # the nearest the body's front comes, per frame
+    focal = min(float(np.min(0.44 * height * depth / reach)),
+                float(np.min(0.44 * width * depth / (np.abs(path[:, 0]) + 0.5))))  # fmt: skip
     eye = np.array([rng.uniform(-0.1, 0.1), rng.uniform(0.0, 0.25), distance])
     return PinholeCamera.look_at(eye, np.array([0.0, -0.05, 0.0]), np.array([0, 1.0, 0]),
                                  focal, width, height)  # fmt: skip
@@ -157,7 +163,8 @@ def render_frame(
     background: np.ndarray,
 ) -> dict[str, np.ndarray]:
     """Render one ground-truth frame. Returns float image (H, W, 3), mask (H, W) bool, posed fine
-    vertices (V_f, 3), keypoints_3d (33, 3) and keypoints (33, 3) = x, y, visibility."""
+    vertices (V_f, 3), keypoints_3d (33, 3), keypoints (33, 3) = x, y, visibility, and the
+    skeleton's posed joints (J, 3), world metres."""
     with torch.no_grad():
         out = body(
             shape=subject.shape,
@@ -194,6 +201,7 @@ def render_frame(
         "posed": posed.numpy(),
         "keypoints_3d": kp3d.numpy(),
         "keypoints": keypoints,
+        "joints": out.joints[0].numpy(),
     }
 
 
@@ -259,6 +267,8 @@ def _generate_into(
         poses = turnaround(body, n, rng)
     elif config.kind == "motion":
         poses, translations = free_motion(body, n, rng, config.fps)
+    elif config.kind in ("walk", "jog"):
+        poses, translations = gait(body, n, rng, config.fps, config.kind)
     else:
         poses = np.stack([standing_pose(body, rng) for _ in range(n)])
     subject_of_frame = np.arange(n) if config.kind == "photo" else np.zeros(n, dtype=int)
@@ -272,9 +282,15 @@ def _generate_into(
     subjects = [build_subject(body, spec, config.texture_size) for spec in specs]
     # frame the tallest subject, with room for a raised arm (≈ 0.35 m above the head) where
     # the sequence has one, and for the jump
-    margin = 0.08 if config.kind == "turnaround" else 0.35
+    margin = 0.35 if config.kind == "motion" else 0.08
     reach = max(float(s.rest_vertices[:, 1].abs().max()) for s in subjects) + margin
-    camera = make_camera(camera_rng, config.width, config.height, reach + translations[:, 1].max())
+    if config.kind in ("walk", "jog"):  # far enough back to see the whole path
+        camera = make_camera(camera_rng, config.width, config.height,
+                             reach + translations[:, 1].max(), (3.8, 4.4),
+                             translations)  # fmt: skip
+    else:
+        camera = make_camera(camera_rng, config.width, config.height,
+                             reach + translations[:, 1].max())  # fmt: skip
     for s, subject in enumerate(subjects):
         d = work / "gt" / f"subject_{s:03d}"
         d.mkdir(parents=True)
@@ -282,7 +298,7 @@ def _generate_into(
                   subject.subdivision.faces.numpy(), subject.subdivision.uv.numpy(),
                   subject.subdivision.face_uv.numpy(), subject.texture)  # fmt: skip
 
-    images, keypoints, keypoints_3d = [], [], []
+    images, keypoints, keypoints_3d, joints = [], [], [], []
     frame_rng = np.random.default_rng(config.seed + 1)
     bar = tqdm(range(n), desc=f"synth {config.kind}", unit="frame", disable=not progress)
     for i in bar:
@@ -300,6 +316,7 @@ def _generate_into(
         images.append(image)
         keypoints.append(r["keypoints"])
         keypoints_3d.append(r["keypoints_3d"])
+        joints.append(r["joints"])
     kp = np.stack(keypoints)
     observed = kp.copy()
     observed[..., :2] += frame_rng.normal(0, noise["keypoint_jitter"], observed[..., :2].shape)
@@ -317,6 +334,8 @@ def _generate_into(
         subject_of_frame=subject_of_frame,
         poses=poses,
         translations=translations,
+        joints=np.stack(joints),
+        joints_camera=np.stack(joints) @ camera.R.T + camera.t,
         displacements=np.stack([s.displacement for s in subjects]),
         garments=np.stack([s.garment for s in subjects]),
         sh=sh_of_frame,
@@ -357,6 +376,8 @@ def _generate_into(
             "canonical_mesh": "gt/subject_%03d/canonical.obj (+ .mtl, .png), metres",
             "posed_meshes": f"gt/posed/%06d.ply every {config.posed_every} frames, metres",
             "params": "gt/params.npz: shapes (S_subj, S), poses (N, J, 3), translations (N, 3), "
+            "joints (N, J, 3) posed skeleton joints, world metres; joints_camera (N, J, 3) the "
+            "same in the camera frame (OpenCV axes), metres; "
             "displacements (S_subj, V_f) metres along canonical normals, garments (S_subj, V_f), "
             "sh (N, 3, 9), subject_of_frame (N,)",
         },
