@@ -287,6 +287,84 @@ def _print_summary(report: Report, out: Path) -> None:
         print(f"  warning: {warning}")
 
 
+# -- track -------------------------------------------------------------------------------------
+
+
+def _add_track(p: argparse.ArgumentParser) -> None:
+    from monoavatar.fit.pose import PoseSettings
+    from monoavatar.fit.tracking import TrackSettings
+    from monoavatar.pipelines.stages import PERCEPTION, InputSettings
+    from monoavatar.pipelines.track import TrackConfig
+
+    p.description = (
+        "Track a person's 3D motion through a video with a static camera (dissertation Paper "
+        "A): mediapipe masks, 2D and 3D landmarks and optical flow per frame; the body (an "
+        "avatar's, or a shape fitted on the first frames) posed frame by frame from a Kalman "
+        "prediction to match the observed flow, silhouette and landmarks. Writes motion.npz "
+        "(poses, translations, landmarks in the camera and an upright world frame), motion.bvh "
+        "(Blender, Maya, Unity), motion.glb (the body animated), preview/overlay.mp4 and "
+        "report.json into a new or empty folder. On a synth folder with ground-truth joints the "
+        "joint errors of Table A.1 are added to report.json and printed.")
+    p.add_argument("input", type=Path, help="a video file, a folder of images (in order), or a "
+                   "folder written by 'monoavatar synth walk|jog|motion'")  # fmt: skip
+    p.add_argument("-o", "--output", required=True, type=Path,
+                   help="output folder (new or empty)")  # fmt: skip
+    _option(p, "--avatar", TrackConfig, "avatar", "a 'monoavatar reconstruct' folder whose "
+            "avatar is tracked (None: a body shape is fitted on the first frames)",
+            metavar="DIR")  # fmt: skip
+    _option(p, "--height", PoseSettings, "height", "the person's height in metres, e.g. 1.75 "
+            "(without it, and without --avatar, the motion is up to scale)", type=float,
+            metavar="M")  # fmt: skip
+    _option(p, "--focal", InputSettings, "focal", "focal length in pixels (None: a 68 degree "
+            "diagonal field of view; a synth folder brings its own)", type=float,
+            metavar="PX")  # fmt: skip
+    _option(p, "--perception", InputSettings, "perception", "masks and landmarks: auto (a "
+            "synth folder's own, else mediapipe), mediapipe, or ground-truth",
+            choices=PERCEPTION)  # fmt: skip
+    _option(p, "--fps", TrackConfig, "fps", "frame rate of the outputs (None: the input's)",
+            type=float)  # fmt: skip
+    p.add_argument("--no-flow", action="store_true", help="without the flow term (Eq. A.1)")
+    p.add_argument("--no-keypoints", action="store_true",
+                   help="without the 2D keypoint term (flow, silhouette and 3D landmarks only)")
+    p.add_argument("--no-world", action="store_true",
+                   help="without mediapipe's metric 3D landmarks")  # fmt: skip
+    _option(p, "--flow-weight", TrackSettings, "flow_weight", "weight of the flow term",
+            type=float)  # fmt: skip
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(run=_run_track)
+
+
+def _run_track(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from monoavatar.pipelines.track import TrackConfig, track
+
+    config = TrackConfig()
+    pose = replace(config.track.pose, height=args.height)
+    config.track = replace(config.track, pose=pose, flow=not args.no_flow,
+                           keypoints=not args.no_keypoints, world=not args.no_world,
+                           flow_weight=args.flow_weight)  # fmt: skip
+    config.input = replace(config.input, focal=args.focal, perception=args.perception)
+    config.avatar = None if args.avatar is None else str(args.avatar)
+    config.fps = args.fps
+    config.progress = not args.quiet
+    result = track(args.input, args.output, config)
+    report = result.report
+    print(f"motion written to {result.folder}/")
+    print("  motion.npz  motion.bvh  motion.glb  preview/overlay.mp4  report.json")
+    print(f"  frames: {report['input']['frames']}  failed: {report['frames_failed']}  "
+          f"re-initialised: {report['frames_reinitialised']}  "
+          f"time: {report['seconds']:.1f} s ({report['seconds_per_frame']:.2f} s per frame)")
+    if "ground_truth" in report:
+        gt = report["ground_truth"]
+        print(f"  joint error against the ground truth: {gt['local_mm']:.1f} mm local, "
+              f"{gt['global_mm']:.1f} mm global; acceleration error "
+              f"{gt['acceleration_mm_per_frame2']:.1f} mm/frame^2")  # fmt: skip
+    for warning in report["warnings"][:5]:
+        print(f"  warning: {warning}")
+    return 0
+
+
 # -- fit-poses, fit-shape ---------------------------------------------------------------------
 
 
@@ -502,6 +580,8 @@ VERBS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None]]] = {
                   _add_fit_poses),
     "fit-shape": ("consensus shape (body shape + per-vertex offsets) of a turning person "
                   "(Sec. B.3.3)", _add_fit_shape),
+    "track": ("3D motion of a person through a video by optical flow (npz, bvh, glb)",
+              _add_track),
     "animate": ("re-pose an avatar with a built-in motion or another video's poses "
                 "(animated glb)", _add_animate),
     "bench": ("measure accuracy and speed on a fixed synthetic suite, beside the dissertation",

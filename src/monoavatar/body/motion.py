@@ -141,3 +141,31 @@ def gait(body: BodyModel, frames: int, rng: np.random.Generator, fps: float = 30
     translations = travelled[:, None] * direction
     translations[:, 1] = bounce * np.abs(np.cos(phi))
     return pose, translations
+
+
+def upright_rotation(up: np.ndarray) -> np.ndarray:
+    """(3, 3) the smallest rotation taking the unit direction ``up`` (3,) to +Y (glTF's up);
+    a half turn about +X when ``up`` is -Y (the world of a camera, y down)."""
+    u = np.asarray(up, dtype=np.float64)
+    u = u / np.linalg.norm(u)
+    y = np.array([0.0, 1.0, 0.0])
+    axis = np.cross(u, y)
+    sin, cos = float(np.linalg.norm(axis)), float(u @ y)
+    if sin < 1e-9:
+        return np.eye(3) if cos > 0 else np.diag([1.0, -1.0, -1.0])
+    angle = np.arctan2(sin, cos)
+    return Rotation.from_rotvec(axis / sin * angle).as_matrix()
+
+
+def turn_upright(poses: np.ndarray, translations: np.ndarray, up: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """A motion (poses (N, J, 3) axis-angle, translations (N, 3) metres) in a world whose up
+    is ``up`` (3,), turned into a Y-up world by :func:`upright_rotation`: the root rotation and
+    the translations turn, the other joints are local and stay."""
+    turn = upright_rotation(up)
+    if np.allclose(turn, np.eye(3)):
+        return poses, translations
+    poses = np.array(poses, dtype=np.float64)
+    root = Rotation.from_matrix(turn) * Rotation.from_rotvec(poses[:, 0])
+    poses[:, 0] = root.as_rotvec()
+    return poses, np.asarray(translations, dtype=np.float64) @ turn.T

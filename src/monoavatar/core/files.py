@@ -42,3 +42,28 @@ def atomic_write_bytes(path: str | Path, payload: bytes, *, fsync: bool = True) 
 def atomic_write_text(path: str | Path, text: str) -> None:
     """Write ``text`` (UTF-8) to ``path`` atomically."""
     atomic_write_bytes(path, text.encode("utf-8"), fsync=False)
+
+
+@contextmanager
+def staged_folder(folder: str | Path) -> Iterator[Path]:
+    """A new folder assembled under a temporary name beside ``folder`` (which must not exist, or
+    be empty) and renamed to it when the block ends without an error; on an error the staging
+    folder is removed and ``folder`` is left as it was.
+
+    Raises:
+        OSError: the parent cannot be written.
+    """
+    import shutil
+
+    folder = Path(folder)
+    parent = folder.resolve().parent
+    parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(dir=parent, prefix=f".{folder.name}.staging-"))
+    try:
+        yield staging
+        if folder.exists():
+            folder.rmdir()
+        os.replace(staging, folder)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise

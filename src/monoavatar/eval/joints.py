@@ -19,7 +19,7 @@ from numpy.typing import ArrayLike
 from monoavatar.eval._checks import BoolArray, FloatArray
 from monoavatar.eval.alignment import align_similarity
 
-__all__ = ["joint_errors", "mpjpe", "pa_mpjpe"]
+__all__ = ["acceleration_error", "joint_errors", "mpjpe", "pa_mpjpe", "tracking_errors"]
 
 
 def _prepare(
@@ -136,3 +136,25 @@ def pa_mpjpe(
     if not distances:
         raise ValueError("mask: no frame has the >= 3 valid joints per-frame alignment needs")
     return float(np.concatenate(distances).mean() * 1000.0)
+
+
+def acceleration_error(pred: ArrayLike, gt: ArrayLike) -> float:
+    """Mean distance between the predicted and true joint accelerations (second differences
+    over frames), millimetres per frame²: how much jitter a track adds. pred, gt (T, J, 3)
+    metres, T >= 3."""
+    p, g, _ = _prepare(pred, gt, None)
+    if p.shape[0] < 3:
+        raise ValueError(f"acceleration needs at least 3 frames, got {p.shape[0]}")
+    accel = np.diff(p, 2, axis=0) - np.diff(g, 2, axis=0)
+    return float(np.linalg.norm(accel, axis=2).mean() * 1000.0)
+
+
+def tracking_errors(pred: ArrayLike, gt: ArrayLike) -> dict[str, float]:
+    """Table A.1's figures for a tracked sequence: mean joint error after a similarity per frame
+    (``local_mm``) and one for the whole sequence (``global_mm``), and the acceleration error
+    (``acceleration_mm_per_frame2``). pred, gt (T, J, 3) metres."""
+    return {
+        "local_mm": pa_mpjpe(pred, gt, per="frame"),
+        "global_mm": pa_mpjpe(pred, gt, per="sequence"),
+        "acceleration_mm_per_frame2": acceleration_error(pred, gt),
+    }

@@ -14,10 +14,13 @@ the translation; :mod:`monoavatar.fit.kalman`) and fitted alone by L-BFGS to (Eq
   the observed mask and covering its outline);
 * E_b, soft joint limits (A.2), and a weak A-pose prior;
 * E_sp, capsule interpenetration of forearms and torso;
-* E_M, closeness to the previous frame (A.5: first differences of the joint rotations and of
-  the translation; :func:`closeness_energy`);
-* optionally E_3d, the detector's metric 3D landmarks (mediapipe's world landmarks) against the
-  model's, both relative to the hips (:func:`world_landmark_energy`; off by default);
+* E_M, closeness (A.5, :func:`closeness_energy`): squared differences of the joint rotations
+  and the translation from the Kalman filters' prediction for this frame (the default), or
+  from the previous frame as in the dissertation;
+* E_3d, the detector's metric 3D landmarks (mediapipe's world landmarks) against the model's,
+  both relative to the hips (:func:`world_landmark_energy`), where the observations have them:
+  they tell a limb reaching towards the camera from one reaching away, which the 2D terms
+  cannot;
 * E_k, mediapipe's 2D keypoints (robust, confidence-weighted) — the dissertation initialised by
   hand; here the keypoints start the track and keep it from drifting.
 
@@ -74,10 +77,11 @@ class TrackSettings:
     flow_sigma: float = 3.0  # Geman-McClure scale, percent of height
     flow_points: int = 400  # pixels of frame i − 1 sampled for E_f
     flow_erode_px: int = 2  # flow within this many pixels of the outline is not trusted
-    world: bool = False  # the detector's metric 3D landmarks, where the observations have them
-    world_weight: float = 1.0
+    world: bool = True  # the detector's metric 3D landmarks, where the observations have them
+    world_weight: float = 0.3
     world_sigma: float = 10.0  # Geman-McClure scale, centimetres
     closeness_weight: float = 10.0
+    closeness_to: str = "prediction"  # "prediction" (the Kalman filters') or "previous" (A.5)
     iterations: int = 20
     rigid_iterations: int = 4
     first_iterations: int = 80
@@ -92,6 +96,9 @@ class TrackSettings:
         for name in ("flow_points", "iterations", "first_iterations", "recent"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
+        if self.closeness_to not in ("prediction", "previous"):
+            raise ValueError(f"closeness_to must be 'prediction' or 'previous', "
+                             f"got {self.closeness_to!r}")  # fmt: skip
         if self.reinit_factor <= 1.0:
             raise ValueError(f"reinit_factor must be above 1, got {self.reinit_factor}")
 
@@ -319,6 +326,8 @@ def _track(body: BodyModel, obs: Observations, settings: TrackSettings,
         clock["flow"] += time.perf_counter() - t0
         t0 = time.perf_counter()
         history = _history(done_p, done_t, dtype)
+        if settings.closeness_to == "prediction" and history is not None:
+            history = _history([pred_p[0]], [pred_t[0]], dtype)
         iterations = settings.first_iterations if i == first else settings.iterations
         world = None
         if settings.world and obs.world_keypoints is not None:
@@ -338,7 +347,10 @@ def _track(body: BodyModel, obs: Observations, settings: TrackSettings,
             clock["refit"] += time.perf_counter() - t0
             if e_i > settings.reinit_factor * max(reference, 0.5) and e_i > ps.fail_energy:
                 failed[i] = True
-        poses[i], trans[i], energy[i] = p_i, t_i, e_i
+        energy[i] = e_i
+        if failed[i]:  # the prediction stands in; the filters carry on without a measurement
+            p_i, t_i = pred_p[0], pred_t[0]
+        poses[i], trans[i] = p_i, t_i
         if not failed[i]:
             if i == first:
                 rot = RotationFilter.start(p_i, settings.rotation_accel_var,
@@ -383,17 +395,42 @@ def closeness_energy(root: Tensor, body: Tensor, translation: Tensor,
             + (((translation - previous[2][-1:]) / translation_scale) ** 2).sum(-1))  # fmt: skip
 
 
+def ray_rotation(direction: Tensor) -> Tensor:
+    """(3, 3) the smallest rotation taking the camera's axis (0, 0, 1) to the unit ``direction``
+    (3,) (Rodrigues' formula about their cross product)."""
+    z = direction.new_tensor([0.0, 0.0, 1.0])
+    d = direction / direction.norm()
+    axis = torch.linalg.cross(z, d)
+    s, c = axis.norm(), (z * d).sum()
+    if s < 1e-12:
+        return torch.eye(3, dtype=direction.dtype)
+    k = axis / s
+    skew = torch.stack([torch.stack([k.new_zeros(()), -k[2], k[1]]),
+                        torch.stack([k[2], k.new_zeros(()), -k[0]]),
+                        torch.stack([-k[1], k[0], k.new_zeros(())])])  # fmt: skip
+    return torch.eye(3, dtype=direction.dtype) + s * skew + (1 - c) * skew @ skew
+
+
 def world_landmark_energy(keypoints: Tensor, camera: PinholeCamera, observed: Tensor,
                           valid: Tensor, sigma: float) -> Tensor:  # fmt: skip
     """The model's 3D landmarks against a detector's metric ones, both relative to the midpoint
-    of the hips in the camera's axes: mean over the valid landmarks of the robust
-    ρ(|Δ| / σ), Δ in centimetres. keypoints (B, 33, 3) world metres; observed (B, 33, 4)
-    (x, y, z metres, confidence); valid (33,) bool, the landmarks the body model defines.
-    Returns (B,)."""
+    of the hips: mean over the valid landmarks of the robust ρ(|Δ| / σ), Δ in centimetres.
+
+    The detector sees a crop around the person and gives its landmarks in axes aligned with
+    that crop's line of sight (weak perspective); they are turned onto the camera's axes by
+    the rotation taking the optical axis to the ray through the model's hips
+    (:func:`ray_rotation`), so a person off the image centre is not turned.
+
+    keypoints (B, 33, 3) world metres; observed (B, 33, 4) (x, y, z metres, confidence);
+    valid (33,) bool, the landmarks the body model defines. Returns (B,).
+    """
     R = torch.as_tensor(camera.R, dtype=keypoints.dtype)
-    cam = keypoints @ R.T
-    rel = cam - 0.5 * (cam[:, _LEFT_HIP] + cam[:, _RIGHT_HIP])[:, None]
-    obs = torch.nan_to_num(observed[..., :3])
+    t = torch.as_tensor(camera.t, dtype=keypoints.dtype)
+    cam = keypoints @ R.T + t
+    hips = 0.5 * (cam[:, _LEFT_HIP] + cam[:, _RIGHT_HIP])
+    rel = cam - hips[:, None]
+    turn = torch.stack([ray_rotation(h) for h in hips.detach()])  # (B, 3, 3)
+    obs = torch.nan_to_num(observed[..., :3]) @ turn.transpose(-1, -2)
     conf = torch.nan_to_num(observed[..., 3]) * valid.to(keypoints.dtype)
     r2 = ((rel - obs) * 100.0).pow(2).sum(-1)
     return (conf * energies.geman_mcclure(r2, sigma)).sum(-1) / conf.sum(-1).clamp_min(1e-6)

@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from monoavatar.body import Avatar, BodyModel, BodyModelError, lbs, load_body_model
+from monoavatar.body import Avatar, BodyModel, BodyModelError, load_body_model
+from monoavatar.body.motion import turn_upright, upright_rotation
 from monoavatar.core.errors import (
     InputError,
     InputFormatError,
@@ -122,20 +123,6 @@ def wave_motion(body: BodyModel, frames: int = 90, fps: float = 30.0) -> PoseAni
     return PoseAnimation(poses=pose, translations=np.zeros((frames, 3)), times=time, name="wave")
 
 
-def upright_rotation(up: np.ndarray) -> np.ndarray:
-    """(3, 3) the smallest rotation taking the unit direction ``up`` (3,) to +Y (glTF's up);
-    a half turn about +X when ``up`` is -Y (the world of a camera, y down)."""
-    u = np.asarray(up, dtype=np.float64)
-    u = u / np.linalg.norm(u)
-    y = np.array([0.0, 1.0, 0.0])
-    axis = np.cross(u, y)
-    sin, cos = float(np.linalg.norm(axis)), float(u @ y)
-    if sin < 1e-9:
-        return np.eye(3) if cos > 0 else np.diag([1.0, -1.0, -1.0])
-    angle = np.arctan2(sin, cos)
-    return lbs.axis_angle_to_matrix(torch.from_numpy(axis / sin * angle)).numpy()
-
-
 def load_motion(
     path: str | Path, fps: float = 30.0, *, num_joints: int | None = None
 ) -> PoseAnimation:
@@ -188,13 +175,7 @@ def load_motion(
         raise InputFormatError(
             path, f"translations: expected shape ({len(poses)}, 3), got {translations.shape}"
         )
-    turn = upright_rotation(up)
-    if not np.allclose(turn, np.eye(3)):
-        poses = poses.copy()
-        root = lbs.axis_angle_to_matrix(torch.from_numpy(poses[:, 0]))
-        turned = torch.from_numpy(turn) @ root
-        poses[:, 0] = lbs.matrix_to_axis_angle(turned).numpy()
-        translations = translations @ turn.T
+    poses, translations = turn_upright(poses, translations, up)
     return PoseAnimation.from_fps(poses, translations - translations[:1], fps, name=path.stem)
 
 

@@ -22,9 +22,6 @@ Pixel origin: the top-left corner of the top-left pixel.
 from __future__ import annotations
 
 import json
-import os
-import shutil
-import tempfile
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -38,6 +35,7 @@ from monoavatar.body import MEDIAPIPE_LANDMARKS, BodyModel, lbs, load_body_model
 from monoavatar.body.motion import free_motion, gait, standing_pose, turnaround
 from monoavatar.core.camera import PinholeCamera
 from monoavatar.core.errors import MonoavatarError
+from monoavatar.core.files import staged_folder
 from monoavatar.io.export_mesh import write_mp4, write_obj, write_ply
 from monoavatar.render import rasterize, render_textured, sample_sh_lighting
 from monoavatar.synth.options import BACKGROUNDS, CLOTHING, KINDS, NOISE_LEVELS
@@ -233,20 +231,11 @@ def generate(
     out_dir = Path(out_dir)
     if out_dir.exists() and (not out_dir.is_dir() or any(out_dir.iterdir())):
         raise SynthError(f"output folder {out_dir} exists and is not empty")
-    parent = out_dir.resolve().parent
     try:
-        parent.mkdir(parents=True, exist_ok=True)
-        work = Path(tempfile.mkdtemp(dir=parent, prefix=f".{out_dir.name}.partial-"))
+        with staged_folder(out_dir) as work:
+            summary = _generate_into(work, config, body, progress)
     except OSError as exc:
-        raise SynthError(f"cannot write to {parent}: {exc}") from exc
-    try:
-        summary = _generate_into(work, config, body, progress)
-        if out_dir.exists():
-            out_dir.rmdir()
-        os.replace(work, out_dir)
-    except BaseException:
-        shutil.rmtree(work, ignore_errors=True)
-        raise
+        raise SynthError(f"cannot write {out_dir}: {exc}") from exc
     summary.folder = out_dir
     return summary
 

@@ -1,0 +1,100 @@
+"""Tracking accuracy, ablations, smoothness and speed (Paper A, Table A.1 and Fig. A.4) on
+``monoavatar synth walk`` / ``jog`` scenes, mediapipe perception on the rendered frames.
+
+For each scene: the tracker with its defaults, without the flow term, without the 2D keypoint
+term and without the 3D landmarks, and the per-frame pose fitter run frame by frame without
+temporal terms (window 1, no smoothness), the baseline of the smoothness figure. Joint errors
+over 14 joints after a similarity per frame (local) and one per sequence (global), the
+acceleration error, and seconds per frame (perception included, from the cache's second run
+excluded: the first variant pays for perception). Run::
+
+    python benchmarks/bench_track.py SCENE [SCENE ...] [--variants default no-flow ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+import warnings
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from monoavatar.body import load_body_model
+from monoavatar.eval.joints import tracking_errors
+from monoavatar.fit.pose import PoseSettings, fit_poses
+from monoavatar.fit.tracking import TrackSettings, track_motion
+from monoavatar.perception.pipeline import PerceptionSettings
+from monoavatar.pipelines.stages import InputSettings, load_inputs
+from monoavatar.pipelines.track import EVAL_JOINTS
+
+VARIANTS = ("default", "no-flow", "no-keypoints", "no-world", "per-frame")
+
+
+def _joints_camera(body, shape, poses, trans, camera) -> np.ndarray:  # type: ignore[no-untyped-def]
+    n = len(poses)
+    with torch.no_grad():
+        out = body(shape=torch.as_tensor(shape, dtype=body.dtype)[None].expand(n, -1),
+                   pose=torch.as_tensor(poses, dtype=body.dtype),
+                   translation=torch.as_tensor(trans, dtype=body.dtype))  # fmt: skip
+    return out.joints.double().numpy() @ np.asarray(camera.R).T + np.asarray(camera.t)
+
+
+def run(scene: Path, variants: tuple[str, ...]) -> list[dict]:
+    t0 = time.perf_counter()
+    settings = InputSettings(frames=100_000, perception="mediapipe",
+                             perception_settings=PerceptionSettings(flow="dis", face=False))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        inputs = load_inputs(scene, settings)
+    perception_s = time.perf_counter() - t0
+    obs = inputs.observations
+    info = json.loads((scene / "scene.json").read_text())
+    height = float(info["subjects"][0]["height_m"])
+    truth = np.load(scene / "gt" / "params.npz")["joints_camera"][obs.frame_indices]
+    body = load_body_model("anny")
+    sel = [body.joint_index(j) for j in EVAL_JOINTS]
+    pose = PoseSettings(height=height)
+    rows = []
+    for variant in variants:
+        t0 = time.perf_counter()
+        if variant == "per-frame":
+            track = fit_poses(body, obs, replace(pose, window=1, smooth_weight=0.0))
+            shape, poses, trans = track.shape, track.poses, track.translations
+        else:
+            ts = TrackSettings(pose=pose, flow=variant != "no-flow",
+                               keypoints=variant != "no-keypoints", world=variant != "no-world")
+            motion = track_motion(body, obs, ts)
+            shape, poses, trans = motion.shape, motion.poses, motion.translations
+        seconds = time.perf_counter() - t0
+        pred = _joints_camera(body, shape, poses, trans, obs.camera)[:, sel]
+        errors = tracking_errors(pred, truth[:, sel])
+        rows.append({"scene": scene.name, "kind": info["config"]["kind"], "variant": variant,
+                     **{k: round(v, 1) for k, v in errors.items()},
+                     "s_per_frame": round((seconds + perception_s) / len(obs), 3),
+                     "perception_s_per_frame": round(perception_s / len(obs), 3)})  # fmt: skip
+        print(json.dumps(rows[-1]), flush=True)
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("scenes", nargs="+", type=Path)
+    parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=VARIANTS)
+    parser.add_argument("-o", "--output", type=Path, default=None, help="a .json of the rows")
+    args = parser.parse_args()
+    rows = [r for scene in args.scenes for r in run(scene, tuple(args.variants))]
+    print("| scene | variant | local mm | global mm | accel mm/frame² | s/frame |")
+    print("|---|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['scene']} ({r['kind']}) | {r['variant']} | {r['local_mm']} | "
+              f"{r['global_mm']} | {r['acceleration_mm_per_frame2']} | {r['s_per_frame']} |")
+    if args.output:
+        args.output.write_text(json.dumps(rows, indent=2))
+
+
+if __name__ == "__main__":
+    main()
