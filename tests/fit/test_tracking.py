@@ -181,3 +181,35 @@ def test_closeness_is_the_squared_change_from_the_previous_frame() -> None:
     value = closeness_energy(torch.as_tensor(root[None]), torch.as_tensor(body),
                              torch.as_tensor(prev_t + [0.05, 0, 0]), previous)  # type: ignore[arg-type]
     np.testing.assert_allclose(value.item(), np.sin(0.1) ** 2 + 0.2**2 + 0.5**2, rtol=1e-9)
+
+
+def test_smoothing_the_landmarks_keeps_lines_and_skips_missing_frames() -> None:
+    from monoavatar.fit.tracking import smooth_landmarks
+
+    n = 50
+    t = np.arange(n, dtype=np.float64)
+    world = np.zeros((n, 33, 4))
+    world[..., 0] = 0.01 * t[:, None]  # x moves linearly, 1 cm per frame
+    world[..., 1] = 0.2
+    world[..., 3] = 1.0
+    world[5] = np.nan  # a frame without landmarks
+    out = smooth_landmarks(world, 2.0)
+    # a line is its own Gaussian average where the whole kernel (± 6 frames) sees landmarks;
+    # the missing frame stays missing
+    interior = slice(12, n - 7)
+    np.testing.assert_allclose(out[interior, :, 0], 0.01 * t[interior, None] * np.ones((1, 33)),
+                               atol=1e-12)  # fmt: skip
+    assert np.isnan(out[5]).all() and np.isfinite(out[[4, 6]]).all()
+    np.testing.assert_allclose(out[..., 1][np.isfinite(out[..., 1])], 0.2, atol=1e-12)
+    np.testing.assert_allclose(np.delete(out[:, :, 3], 5, axis=0), 1.0, atol=1e-12)
+    # noise shrinks by about the kernel's effective width: σ_out ≈ σ_in / sqrt(2 √π σ)
+    rng = np.random.default_rng(0)
+    noisy = world.copy()
+    noisy[5] = 0.0
+    noisy[..., 3] = 1.0
+    noisy[..., 2] = rng.normal(0.0, 0.05, (n, 33))
+    smoothed = smooth_landmarks(noisy, 2.0)[interior, :, 2]
+    expected = 0.05 / np.sqrt(2 * np.sqrt(np.pi) * 2.0)
+    assert 0.7 * expected < smoothed.std() < 1.3 * expected
+    # σ = 0 leaves them as they are
+    np.testing.assert_array_equal(smooth_landmarks(world, 0.0), world)

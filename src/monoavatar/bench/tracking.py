@@ -80,9 +80,9 @@ def run_tracking_bench(out_dir: str | Path, *, quick: bool = False, progress: bo
         scene = _scene(sequence, scenes, progress)
         info = json.loads((scene / "scene.json").read_text())
         config = TrackConfig(progress=progress)
+        perception = PerceptionSettings(flow="dis", face=False)
         config.input = InputSettings(frames=100_000, perception="mediapipe",
-                                     perception_settings=PerceptionSettings(flow="dis",
-                                                                            face=False))  # fmt: skip
+                                     perception_settings=perception)  # fmt: skip
         config.track.pose.height = float(info["subjects"][0]["height_m"])
         folder = out / "tracking" / sequence.name
         if folder.exists():

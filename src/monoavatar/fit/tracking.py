@@ -80,6 +80,7 @@ class TrackSettings:
     world: bool = True  # the detector's metric 3D landmarks, where the observations have them
     world_weight: float = 0.3
     world_sigma: float = 10.0  # Geman-McClure scale, centimetres
+    world_smooth: float = 2.0  # temporal Gaussian over the 3D landmarks, σ in frames (0: none)
     closeness_weight: float = 10.0
     closeness_to: str = "prediction"  # "prediction" (the Kalman filters') or "previous" (A.5)
     iterations: int = 20
@@ -262,6 +263,39 @@ def _start(body: BodyModel, obs: Observations, settings: TrackSettings,
     return torch.as_tensor(shape, dtype=body.dtype), poses[0], trans[0], first
 
 
+def smooth_landmarks(world: np.ndarray, sigma: float) -> np.ndarray:
+    """3D landmarks (N, 33, 4) (x, y, z, confidence; NaN rows where absent) averaged over
+    neighbouring frames with Gaussian weights of σ = ``sigma`` frames times each frame's
+    confidence; the confidence becomes the weighted mean confidence. Frames without any
+    landmark stay NaN."""
+    world = np.asarray(world, dtype=np.float64)
+    if sigma <= 0:
+        return world.copy()
+    n = len(world)
+    radius = int(np.ceil(3 * sigma))
+    offsets = np.arange(-radius, radius + 1)
+    kernel = np.exp(-0.5 * (offsets / sigma) ** 2)
+    present = np.isfinite(world).all(axis=-1)  # (N, 33)
+    conf = np.where(present, world[..., 3], 0.0)
+    xyz = np.where(present[..., None], world[..., :3], 0.0)
+    total = np.zeros((n, world.shape[1]))
+    acc = np.zeros((n, world.shape[1], 3))
+    weight_sum = np.zeros((n, world.shape[1]))
+    for k, o in zip(kernel, offsets, strict=True):
+        src = np.clip(np.arange(n) + o, 0, n - 1)
+        valid = (np.arange(n) + o >= 0) & (np.arange(n) + o < n)
+        w = k * conf[src] * valid[:, None]
+        acc += w[..., None] * xyz[src]
+        total += w
+        weight_sum += k * valid[:, None] * present[src]
+    out = np.full_like(world, np.nan)
+    ok = total > 0
+    out[..., :3][ok] = acc[ok] / total[ok][:, None]
+    out[..., 3][ok] = total[ok] / np.maximum(weight_sum[ok], 1e-12)
+    out[~present.any(axis=1)] = np.nan
+    return out
+
+
 def _track(body: BodyModel, obs: Observations, settings: TrackSettings,
            shape_in: Tensor | np.ndarray | None, offsets_in: Tensor | np.ndarray | None,
            progress: bool) -> MotionTrack:  # fmt: skip
@@ -297,6 +331,9 @@ def _track(body: BodyModel, obs: Observations, settings: TrackSettings,
     tra = TranslationFilter.start(trans0, settings.translation_accel_var,
                                   settings.translation_measure_var)  # fmt: skip
     poses[:first], trans[:first] = pose0, trans0
+    landmarks = None
+    if settings.world and obs.world_keypoints is not None:
+        landmarks = smooth_landmarks(obs.world_keypoints, settings.world_smooth)
     clock = {"predict": 0.0, "flow": 0.0, "fit": 0.0, "refit": 0.0}
     bar = tqdm(range(first, n), desc="track", unit="frame", disable=not progress)
     for i in bar:
@@ -330,10 +367,8 @@ def _track(body: BodyModel, obs: Observations, settings: TrackSettings,
             history = _history([pred_p[0]], [pred_t[0]], dtype)
         iterations = settings.first_iterations if i == first else settings.iterations
         world = None
-        if settings.world and obs.world_keypoints is not None:
-            world = torch.as_tensor(obs.world_keypoints[i : i + 1], dtype=dtype)
-            if not torch.isfinite(world).any():
-                world = None
+        if landmarks is not None and np.isfinite(landmarks[i]).any():
+            world = torch.as_tensor(landmarks[i : i + 1], dtype=dtype)
         p_i, t_i, e_i = _fit_frame(ctx, sub, frames, pred_p, pred_t, history, flow, surface,
                                    joints, settings, iterations, world)  # fmt: skip
         clock["fit"] += time.perf_counter() - t0
