@@ -323,6 +323,9 @@ def _add_track(p: argparse.ArgumentParser) -> None:
             choices=PERCEPTION)  # fmt: skip
     _option(p, "--fps", TrackConfig, "fps", "frame rate of the outputs (None: the input's)",
             type=float)  # fmt: skip
+    p.add_argument("--flow-method", choices=("dis", "deepflow"), default="dis",
+                   help="optical flow: OpenCV's DIS (fast) or DeepFlow (slower, more accurate; "
+                   "default: %(default)s)")  # fmt: skip
     p.add_argument("--no-flow", action="store_true", help="without the flow term (Eq. A.1)")
     p.add_argument("--no-keypoints", action="store_true",
                    help="without the 2D keypoint term (flow, silhouette and 3D landmarks only)")
@@ -344,7 +347,10 @@ def _run_track(args: argparse.Namespace) -> int:
     config.track = replace(config.track, pose=pose, flow=not args.no_flow,
                            keypoints=not args.no_keypoints, world=not args.no_world,
                            flow_weight=args.flow_weight)  # fmt: skip
-    config.input = replace(config.input, focal=args.focal, perception=args.perception)
+    perception = replace(config.input.perception_settings,
+                         flow=None if args.no_flow else args.flow_method)  # fmt: skip
+    config.input = replace(config.input, focal=args.focal, perception=args.perception,
+                           perception_settings=perception)  # fmt: skip
     config.avatar = None if args.avatar is None else str(args.avatar)
     config.fps = args.fps
     config.progress = not args.quiet

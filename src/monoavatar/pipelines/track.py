@@ -143,7 +143,8 @@ def track(input_path: str | Path, out_dir: str | Path, config: TrackConfig | Non
             from monoavatar.perception.flow import flow_sequence, make_flow_estimator
 
             with timer("flow"):
-                flow = flow_sequence(inputs.frames.images, make_flow_estimator("dis"))
+                method = config.input.perception_settings.flow or "dis"
+                flow = flow_sequence(inputs.frames.images, make_flow_estimator(method))
             obs = _with_flow(obs, flow)
         with timer("track"):
             shape = avatar.params.shape if avatar is not None else None
