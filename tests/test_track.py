@@ -106,3 +106,16 @@ def test_untrackable_inputs_exit_2_and_leave_nothing(walk: Path, tmp_path: Path,
     assert main(["track", str(walk), "-o", str(busy), "--quiet"]) == 2
     assert "not empty" in capsys.readouterr().err
     assert (busy / "keep.txt").read_text() == "mine"
+
+
+def test_a_frame_range_tracks_only_those_frames(walk: Path, tmp_path: Path, capsys) -> None:
+    out = tmp_path / "range"
+    assert main(["track", str(walk), "-o", str(out), "--quiet", "--frames", "3:9"]) == 0
+    with np.load(out / "motion.npz") as m:
+        np.testing.assert_array_equal(m["frames"], np.arange(3, 9))
+        assert m["poses"].shape[0] == 6
+    for bad in ("9:3", "a:b", "-1:4", "5"):
+        with pytest.raises(SystemExit) as exc:
+            main(["track", str(walk), "-o", str(tmp_path / "x"), "--frames", bad])
+        assert exc.value.code == 2, bad
+    assert "A:B" in capsys.readouterr().err

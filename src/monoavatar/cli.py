@@ -323,6 +323,9 @@ def _add_track(p: argparse.ArgumentParser) -> None:
             choices=PERCEPTION)  # fmt: skip
     _option(p, "--fps", TrackConfig, "fps", "frame rate of the outputs (None: the input's)",
             type=float)  # fmt: skip
+    p.add_argument("--frames", dest="frame_range", type=_frame_range, default=None,
+                   metavar="A:B", help="track source frames A (inclusive) to B (exclusive), "
+                   "0-based; either may be left out, e.g. 120: or :300 (default: all)")
     p.add_argument("--flow-method", choices=("dis", "deepflow"), default="dis",
                    help="optical flow: OpenCV's DIS (fast) or DeepFlow (slower, more accurate; "
                    "default: %(default)s)")  # fmt: skip
@@ -337,6 +340,22 @@ def _add_track(p: argparse.ArgumentParser) -> None:
     p.set_defaults(run=_run_track)
 
 
+def _frame_range(text: str) -> tuple[int | None, int | None]:
+    """``"A:B"`` → (A, B), either None when left out; A < B, both >= 0."""
+    parts = text.split(":")
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        first, stop = (int(p) if p.strip() else None for p in parts)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected A:B (frame indices), got {text!r}") from None
+    if (first is not None and first < 0) or (stop is not None and stop < 0):
+        raise argparse.ArgumentTypeError(f"frame indices must be >= 0, got {text!r}")
+    if first is not None and stop is not None and stop <= first:
+        raise argparse.ArgumentTypeError(f"B must be after A, got {text!r}")
+    return first, stop
+
+
 def _run_track(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
@@ -349,8 +368,9 @@ def _run_track(args: argparse.Namespace) -> int:
                            flow_weight=args.flow_weight)  # fmt: skip
     perception = replace(config.input.perception_settings,
                          flow=None if args.no_flow else args.flow_method)  # fmt: skip
+    first, stop = args.frame_range if args.frame_range is not None else (None, None)
     config.input = replace(config.input, focal=args.focal, perception=args.perception,
-                           perception_settings=perception)  # fmt: skip
+                           perception_settings=perception, first=first, stop=stop)  # fmt: skip
     config.avatar = None if args.avatar is None else str(args.avatar)
     config.fps = args.fps
     config.progress = not args.quiet

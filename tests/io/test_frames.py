@@ -22,6 +22,14 @@ def test_selection_step_keyframes_and_range() -> None:
         FrameSelection(start_s=1.0, end_s=3.0, step=2).select(times), [2, 4, 6]
     )
     np.testing.assert_array_equal(FrameSelection(end_s=0.0).select(times), [0])
+    # an index range, then the time range and the key-frames within it
+    np.testing.assert_array_equal(FrameSelection(first=3, stop=6).select(times), [3, 4, 5])
+    np.testing.assert_array_equal(FrameSelection(first=8).select(times), [8, 9, 10])
+    np.testing.assert_array_equal(FrameSelection(stop=2).select(times), [0, 1])
+    np.testing.assert_array_equal(FrameSelection(first=2, stop=9, end_s=2.0).select(times),
+                                  [2, 3, 4])  # fmt: skip
+    np.testing.assert_array_equal(FrameSelection(first=2, num_keyframes=2).select(times),
+                                  [2, 10])  # fmt: skip
 
 
 @pytest.mark.parametrize(
@@ -34,6 +42,9 @@ def test_selection_step_keyframes_and_range() -> None:
         ({"start_s": -1.0}, "start_s must be finite and >= 0"),
         ({"end_s": float("nan")}, "end_s must be finite"),
         ({"start_s": 2.0, "end_s": 1.0}, "is before start_s"),
+        ({"first": -1}, "first must be an integer >= 0"),
+        ({"stop": 2.5}, "stop must be an integer >= 0"),
+        ({"first": 4, "stop": 4}, "must be after first"),
     ],
 )
 def test_selection_rejects_bad_values(kwargs: dict[str, float], message: str) -> None:

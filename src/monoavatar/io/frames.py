@@ -21,12 +21,15 @@ import numpy as np
 class FrameSelection:
     """Which frames of a source to keep.
 
-    The time range is applied first, then either ``step`` or ``num_keyframes``.
+    The index range and the time range are applied first, then either ``step`` or
+    ``num_keyframes``.
 
     Attributes:
         step: keep every ``step``-th frame of the range (1 keeps all).
         num_keyframes: keep this many frames spread evenly over the range, first and last
             included (all frames when the range has fewer). Exclusive with ``step > 1``.
+        first: first source frame to keep (0-based index, inclusive; None: the first).
+        stop: source frame index to stop before (exclusive; None: to the end).
         start_s: first time to keep, seconds from the source's first frame (inclusive).
         end_s: last time to keep, seconds (inclusive). ``None``: to the end.
     """
@@ -35,6 +38,8 @@ class FrameSelection:
     num_keyframes: int | None = None
     start_s: float | None = None
     end_s: float | None = None
+    first: int | None = None
+    stop: int | None = None
 
     def __post_init__(self) -> None:
         if int(self.step) != self.step or self.step < 1:
@@ -54,6 +59,13 @@ class FrameSelection:
             value = getattr(self, name)
             if value is not None and (not math.isfinite(value) or value < 0):
                 raise ValueError(f"FrameSelection.{name} must be finite and >= 0, got {value!r}")
+        for name in ("first", "stop"):
+            value = getattr(self, name)
+            if value is not None and (int(value) != value or value < 0):
+                raise ValueError(f"FrameSelection.{name} must be an integer >= 0, got {value!r}")
+        if self.first is not None and self.stop is not None and self.stop <= self.first:
+            raise ValueError(f"FrameSelection: stop ({self.stop}) must be after first "
+                             f"({self.first})")  # fmt: skip
         if self.start_s is not None and self.end_s is not None and self.end_s < self.start_s:
             raise ValueError(
                 f"FrameSelection: end_s ({self.end_s}) is before start_s ({self.start_s})"
@@ -74,11 +86,11 @@ class FrameSelection:
             (K,) int64 positions into ``times``, increasing.
         """
         times = np.asarray(times, dtype=np.float64)
-        candidates = np.arange(len(times), dtype=np.int64)
+        candidates = np.arange(len(times), dtype=np.int64)[self.first : self.stop]
         if self.uses_time:
             lo = -np.inf if self.start_s is None else self.start_s - 1e-9
             hi = np.inf if self.end_s is None else self.end_s + 1e-9
-            candidates = candidates[(times >= lo) & (times <= hi)]
+            candidates = candidates[(times[candidates] >= lo) & (times[candidates] <= hi)]
         if self.num_keyframes is not None:
             if len(candidates) > self.num_keyframes:
                 pick = np.round(np.linspace(0, len(candidates) - 1, self.num_keyframes))

@@ -87,6 +87,8 @@ class InputSettings:
 
     Attributes:
         frames: key-frames to use, spread evenly over the input (all when it has fewer).
+        first, stop: the source frame range to use, ``first`` inclusive, ``stop`` exclusive
+            (0-based indices; None: from the start, to the end).
         focal: focal length in pixels (None: ``camera`` or the documented default).
         camera: a ``camera.json`` with the intrinsics (and extrinsics) of the input.
         perception: ``"auto"`` (a synth or People-Snapshot folder's own masks and keypoints
@@ -96,6 +98,8 @@ class InputSettings:
     """
 
     frames: int = 120
+    first: int | None = None
+    stop: int | None = None
     focal: float | None = None
     camera: str | None = None
     perception: str = "auto"
@@ -132,7 +136,8 @@ def load_inputs(path: str | Path, settings: InputSettings) -> Inputs:
     path = Path(path)
     if not path.exists():
         raise InputNotFoundError(path, "no such file or folder")
-    selection = FrameSelection(num_keyframes=settings.frames)
+    selection = FrameSelection(num_keyframes=settings.frames, first=settings.first,
+                               stop=settings.stop)  # fmt: skip
     if path.is_dir() and is_synth_scene(path):
         n = len(sorted((path / "frames").glob("*.png")))
         idx = selection.select(np.arange(n, dtype=np.float64))
