@@ -104,9 +104,17 @@ class Subset:
         """rotations (B, J, 3, 3), translation (B, 3) → keypoints (B, 33, 3) of the body,
         joints (B, J, 3) and silhouette points (B, M, 3) (with the offsets, when the subset
         has them; the keypoints go without)."""
-        b = rotations.shape[0]
+        return self.posed(self.transforms(rotations, translation))
+
+    def transforms(self, rotations: Tensor, translation: Tensor) -> Tensor:
+        """(B, J, 4, 4) the joint transforms of rotations (B, J, 3, 3), translation (B, 3)."""
+        joints = self.rest_joints.expand(rotations.shape[0], -1, -1)
+        return lbs.joint_transforms(rotations, joints, self.parents, translation)
+
+    def posed(self, transforms: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """:meth:`pose` from joint transforms (B, J, 4, 4)."""
+        b = transforms.shape[0]
         joints = self.rest_joints.expand(b, -1, -1)
-        transforms = lbs.joint_transforms(rotations, joints, self.parents, translation)
         posed_joints = transforms[..., :3, 3] + (
             transforms[..., :3, :3] @ joints.unsqueeze(-1)
         ).squeeze(-1)
@@ -258,11 +266,14 @@ def joint_limits(body: BodyModel) -> tuple[tuple[int, int, float, float], ...]:
     return tuple(out)
 
 
-def energy_terms(ctx: EnergyContext, sub: Subset, var: Variables, frames: Frames
-                  ) -> dict[str, Tensor]:  # fmt: skip
-    """Per-frame (B,) values of each energy term (unweighted)."""
+def energy_terms(ctx: EnergyContext, sub: Subset, var: Variables, frames: Frames,
+                 posed: tuple[Tensor, Tensor, Tensor] | None = None
+                 ) -> dict[str, Tensor]:  # fmt: skip
+    """Per-frame (B,) values of each energy term (unweighted); ``posed``: the subset already
+    posed by ``var`` (:meth:`Subset.pose`), when at hand."""
     body = ctx.body
-    keypoints, joints, silhouette = sub.pose(var.rotations(), var.translation)
+    keypoints, joints, silhouette = (posed if posed is not None
+                                     else sub.pose(var.rotations(), var.translation))  # fmt: skip
     kp_px, _ = ctx.camera.project(keypoints)
     sil_px, _ = ctx.camera.project(silhouette)
     s = ctx.settings

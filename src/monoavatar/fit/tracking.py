@@ -182,13 +182,11 @@ def flow_targets(previous: Tensor, faces: Tensor, camera: PinholeCamera, flow: n
     )
 
 
-def _flow_energy(ctx: pe.EnergyContext, rest: Tensor, weights: Tensor, rest_joints: Tensor,
-                 var: pe.Variables, flow: FlowTargets, scale: Tensor,
-                 sigma: float) -> Tensor:  # fmt: skip
-    """(1,) robust E_f of one frame: the sampled surface points posed by ``var``, projected."""
+def _flow_energy(ctx: pe.EnergyContext, rest: Tensor, weights: Tensor, transforms: Tensor,
+                 flow: FlowTargets, scale: Tensor, sigma: float) -> Tensor:  # fmt: skip
+    """(1,) robust E_f of one frame: the sampled surface points posed by the joint transforms
+    (1, J, 4, 4), projected."""
     ids, inverse = torch.unique(flow.vertex_ids.reshape(-1), return_inverse=True)
-    transforms = lbs.joint_transforms(var.rotations(), rest_joints[None],
-                                      tuple(ctx.body.parents), var.translation)  # fmt: skip
     posed = lbs.skin(rest[ids][None], weights[ids], transforms)[0]  # (U, 3)
     corners = posed[inverse.reshape(-1, 3)]  # (K, 3, 3)
     points = (flow.bary[..., None] * corners).sum(1)
@@ -482,17 +480,19 @@ def _fit_frame(ctx: pe.EnergyContext, sub: pe.Subset, frames: pe.Frames, pred_p:
     weights = ctx.body.skin_weights
 
     def total() -> Tensor:
-        e = pe.weighted_energy(ctx, pe.energy_terms(ctx, sub, var, frames))
+        rotations = var.rotations()
+        transforms = sub.transforms(rotations, var.translation)
+        posed = sub.posed(transforms)
+        e = pe.weighted_energy(ctx, pe.energy_terms(ctx, sub, var, frames, posed))
         if history is not None:
             e = e + settings.closeness_weight * closeness_energy(
-                var.root(), var.body, var.translation, history)
+                rotations[:, 0], var.body, var.translation, history)
         if world is not None:
-            keypoints, _, _ = sub.pose(var.rotations(), var.translation)
             e = e + settings.world_weight * world_landmark_energy(
-                keypoints, ctx.camera, world, ctx.body.keypoint_valid, settings.world_sigma)
+                posed[0], ctx.camera, world, ctx.body.keypoint_valid, settings.world_sigma)
         if flow is not None:
             e = e + settings.flow_weight * _flow_energy(
-                ctx, surface, weights, rest_joints, var, flow, frames.targets.scale,
+                ctx, surface, weights, transforms, flow, frames.targets.scale,
                 settings.flow_sigma)
         return e.sum()
 
