@@ -64,6 +64,31 @@ def test_track_writes_the_motion_with_documented_keys_and_units(walk: Path, trac
     assert report["input"]["frames"] == FRAMES and report["frames_failed"] == 0
     assert set(report["ground_truth"]) >= {"local_mm", "global_mm", "acceleration_mm_per_frame2"}
     assert report["ground_truth"]["local_mm"] < 150.0
+    # a small person is warned about, a large one is not
+    masks = [np.asarray(Image.open(f)) > 0 for f in sorted((walk / "masks").glob("*.png"))]
+    tall = np.median([np.ptp(np.flatnonzero(m.any(axis=1))) + 1 for m in masks])
+    assert any("px tall" in w for w in report["warnings"]) == (tall < 150), (tall, report)
+
+
+def test_quality_warnings_name_small_people_and_many_failed_frames() -> None:
+    from types import SimpleNamespace
+
+    from monoavatar.pipelines.track import quality_warnings
+
+    masks = np.zeros((10, 400, 100), bool)
+    masks[:, 50:350, 40:60] = True  # 300 px tall
+    failed = np.zeros(10, bool)
+    motion = SimpleNamespace(failed=failed, reinitialised=failed.copy())
+    obs = SimpleNamespace(masks=masks)
+    assert quality_warnings(obs, motion) == []  # type: ignore[arg-type]
+    masks[:, 200:] = False  # 150 px tall... and one frame failed: fine
+    masks[:, 50:101] = False  # now 99 px
+    failed[3] = True
+    (small,) = quality_warnings(obs, motion)  # type: ignore[arg-type]
+    assert "99 px tall" in small
+    failed[:5] = True
+    messages = quality_warnings(obs, motion)  # type: ignore[arg-type]
+    assert any("5 of 10 frames failed" in m for m in messages)
 
 
 def test_bvh_reread_independently_gives_the_motions_joints(tracked: Path) -> None:

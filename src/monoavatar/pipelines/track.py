@@ -44,7 +44,8 @@ from monoavatar.pipelines.stages import (
 )
 from monoavatar.render import rasterize, render_normals
 
-__all__ = ["EVAL_JOINTS", "MOTION_FILES", "TrackConfig", "TrackResult", "track"]
+__all__ = ["EVAL_JOINTS", "MOTION_FILES", "TrackConfig", "TrackQualityWarning", "TrackResult",
+           "quality_warnings", "track"]  # fmt: skip
 
 MOTION_FILES = ("motion.npz", "motion.bvh", "motion.glb", "preview/overlay.mp4", "report.json")
 #: The 14 joints of the accuracy figures (Table A.1 measures 13-15 of HumanEva's).
@@ -152,12 +153,42 @@ def track(input_path: str | Path, out_dir: str | Path, config: TrackConfig | Non
             motion = track_motion(body, obs, config.track, shape=shape, offsets=offsets,
                                   progress=config.progress)  # fmt: skip
         fps = _fps(inputs, config)
+        for message in quality_warnings(obs, motion):
+            warnings.warn(message, TrackQualityWarning, stacklevel=2)
         with timer("export"):
             files, report = _export(body, inputs, motion, avatar, out_dir, fps, config, timer,
                                     start, caught)  # fmt: skip
     for w in caught:
         warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     return TrackResult(out_dir, motion, files, report)
+
+
+class TrackQualityWarning(UserWarning):
+    """The motion was tracked, but from input that makes it less accurate than usual."""
+
+
+#: A person shorter than this (pixels, median over frames) is warned about.
+SMALL_PERSON_PX = 150
+#: More failed (or re-initialised) frames than this fraction are warned about.
+FAILED_FRACTION = 0.1
+
+
+def quality_warnings(obs: Observations, motion: MotionTrack) -> list[str]:
+    """What a user should know about a track's input: a small (distant) person, many failed or
+    re-initialised frames."""
+    out = []
+    heights = [int(np.ptp(np.flatnonzero(m.any(axis=1)))) + 1
+               for m in obs.masks if m.any()]  # fmt: skip
+    if heights and np.median(heights) < SMALL_PERSON_PX:
+        out.append(f"the person is only {int(np.median(heights))} px tall (median over the "
+                   f"frames): expect larger errors; film closer or at a higher resolution")
+    n = len(motion.failed)
+    for flags, what in ((motion.failed, "failed (their pose is the prediction)"),
+                        (motion.reinitialised, "were re-fitted after an energy jump")):  # fmt: skip
+        if flags.sum() > FAILED_FRACTION * n:
+            out.append(f"{int(flags.sum())} of {n} frames {what}: check "
+                       "preview/overlay.mp4")  # fmt: skip
+    return out
 
 
 def _with_flow(obs: Observations, flow: np.ndarray) -> Observations:
