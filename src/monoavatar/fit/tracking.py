@@ -53,8 +53,9 @@ from monoavatar.fit.prior import apose_prior
 from monoavatar.perception.observations import Observations
 from monoavatar.render.raster import rasterize
 
-__all__ = ["FlowTargets", "MotionTrack", "TrackError", "TrackSettings", "flow_targets",
-           "track_motion"]  # fmt: skip
+__all__ = ["FlowTargets", "MotionTrack", "TrackError", "TrackSettings", "closeness_energy",
+           "flow_targets", "ray_rotation", "smooth_landmarks", "track_motion",
+           "world_landmark_energy"]  # fmt: skip
 
 
 class TrackError(MonoavatarError, ValueError):
@@ -352,8 +353,10 @@ def _track(body: BodyModel, obs: Observations, settings: TrackSettings,
         if (settings.flow and obs.flow is not None and i > first and not failed[i - 1]
                 and not obs.no_person[i - 1]):  # fmt: skip
             with torch.no_grad():
-                prev = lbs.skin(surface[None], body.skin_weights,
-                                _transforms(body, joints, poses[i - 1], trans[i - 1]))[0]
+                rotations = lbs.axis_angle_to_matrix(torch.as_tensor(poses[i - 1], dtype=dtype))
+                transforms = sub.transforms(rotations[None],
+                                            torch.as_tensor(trans[i - 1], dtype=dtype)[None])
+                prev = lbs.skin(surface[None], body.skin_weights, transforms)[0]
             flow = flow_targets(prev, faces, obs.camera, obs.flow[i - 1], obs.masks[i - 1],
                                 settings.flow_points, settings.flow_erode_px, ps.seed + i)
             if len(flow) == 0:
@@ -368,7 +371,7 @@ def _track(body: BodyModel, obs: Observations, settings: TrackSettings,
         if landmarks is not None and np.isfinite(landmarks[i]).any():
             world = torch.as_tensor(landmarks[i : i + 1], dtype=dtype)
         p_i, t_i, e_i = _fit_frame(ctx, sub, frames, pred_p, pred_t, history, flow, surface,
-                                   joints, settings, iterations, world)  # fmt: skip
+                                   settings, iterations, world)  # fmt: skip
         clock["fit"] += time.perf_counter() - t0
         recent = energy[max(0, i - settings.recent) : i]
         recent = recent[np.isfinite(recent)]
@@ -402,14 +405,6 @@ def _track(body: BodyModel, obs: Observations, settings: TrackSettings,
         frame_indices=np.asarray(obs.frame_indices, dtype=np.int64).copy(), camera=obs.camera,
         seconds=time.perf_counter() - start, timings=timings,
     )  # fmt: skip
-
-
-def _transforms(body: BodyModel, rest_joints: Tensor, pose: np.ndarray,
-                translation: np.ndarray) -> Tensor:  # fmt: skip
-    """(1, J, 4, 4) joint transforms of one pose."""
-    rotations = lbs.axis_angle_to_matrix(torch.as_tensor(pose, dtype=body.dtype))[None]
-    return lbs.joint_transforms(rotations, rest_joints[None], tuple(body.parents),
-                                torch.as_tensor(translation, dtype=body.dtype)[None])  # fmt: skip
 
 
 _LEFT_HIP, _RIGHT_HIP = 23, 24
@@ -471,8 +466,7 @@ def world_landmark_energy(keypoints: Tensor, camera: PinholeCamera, observed: Te
 
 def _fit_frame(ctx: pe.EnergyContext, sub: pe.Subset, frames: pe.Frames, pred_p: np.ndarray,
                pred_t: np.ndarray, history: tuple[Tensor, Tensor, Tensor] | None,
-               flow: FlowTargets | None, surface: Tensor, rest_joints: Tensor,
-               settings: TrackSettings, iterations: int,
+               flow: FlowTargets | None, surface: Tensor, settings: TrackSettings, iterations: int,
                world: Tensor | None = None) -> tuple[np.ndarray, np.ndarray, float]:  # fmt: skip
     """One frame by Eq. A.4 from the prediction (1, J, 3), (1, 3). Returns the pose (J, 3),
     translation (3,) and the energy without the flow and closeness terms."""

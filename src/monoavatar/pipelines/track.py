@@ -146,7 +146,7 @@ def track(input_path: str | Path, out_dir: str | Path, config: TrackConfig | Non
             with timer("flow"):
                 method = config.input.perception_settings.flow or "dis"
                 flow = flow_sequence(inputs.frames.images, make_flow_estimator(method))
-            obs = _with_flow(obs, flow)
+            obs = replace(obs, flow=flow)
         with timer("track"):
             shape = avatar.params.shape if avatar is not None else None
             offsets = avatar.params.offsets if avatar is not None else None
@@ -189,10 +189,6 @@ def quality_warnings(obs: Observations, motion: MotionTrack) -> list[str]:
             out.append(f"{int(flags.sum())} of {n} frames {what}: check "
                        "preview/overlay.mp4")  # fmt: skip
     return out
-
-
-def _with_flow(obs: Observations, flow: np.ndarray) -> Observations:
-    return replace(obs, flow=flow)
 
 
 def _posed(body: BodyModel, shape: np.ndarray, poses: np.ndarray, translations: np.ndarray,
