@@ -36,6 +36,21 @@ def load_body_model(
     )
 
 
+def load_body_model_for(identity: str) -> BodyModel:
+    """The shipped body model a ``BodyModel.identity`` string names (an avatar's).
+
+    Raises:
+        BodyModelError: a model that is not shipped (SMPL: load the user's file instead).
+    """
+    if identity.startswith("anny-"):
+        local = identity.endswith("local_changes=all")
+        return load_body_model("anny-local" if local else "anny")
+    raise BodyModelError(
+        f"cannot load body model {identity!r} by itself; pass the body model (e.g. the user's "
+        "SMPL file loaded with load_body_model(path))"
+    )
+
+
 __all__ = [
     "MEDIAPIPE_LANDMARKS",
     "REGIONS",
@@ -44,4 +59,5 @@ __all__ = [
     "BodyModelError",
     "BodyOutput",
     "load_body_model",
+    "load_body_model_for",
 ]

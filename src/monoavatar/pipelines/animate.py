@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from monoavatar.body import Avatar, BodyModel, BodyModelError, load_body_model
+from monoavatar.body import Avatar, BodyModel, load_body_model_for
 from monoavatar.body.motion import turn_upright, upright_rotation
 from monoavatar.core.errors import (
     InputError,
@@ -227,17 +227,6 @@ def animate(
     return write_animated_glb(out_path, mesh, animation)
 
 
-def _body_for(identity: str) -> BodyModel:
-    """Load the shipped body model an avatar's identity string names."""
-    if identity.startswith("anny-"):
-        local = identity.endswith("local_changes=all")
-        return load_body_model("anny-local" if local else "anny")
-    raise BodyModelError(
-        f"cannot load body model {identity!r} by itself; pass the body model (e.g. the user's "
-        "SMPL file loaded with load_body_model(path))"
-    )
-
-
 def animate_folder(
     avatar_dir: str | Path,
     motion: str | Path | PoseAnimation,
@@ -272,7 +261,7 @@ def animate_folder(
     folder = AvatarFolder.load(avatar_dir, mesh=False)
     params = folder.params
     if body is None:
-        body = _body_for(params.body_model)
+        body = load_body_model_for(params.body_model)
     if params.shape.shape != (body.shape_dim,):
         raise InputFormatError(
             Path(avatar_dir) / "params.npz",

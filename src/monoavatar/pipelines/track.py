@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from monoavatar.body import BodyModel, load_body_model
+from monoavatar.body import BodyModel, load_body_model, load_body_model_for
 from monoavatar.body.motion import turn_upright
 from monoavatar.core.errors import InputError
 from monoavatar.core.files import staged_folder
@@ -99,10 +99,7 @@ def _body_and_avatar(config: TrackConfig) -> tuple[BodyModel, AvatarFolder | Non
         return load_body_model(config.body_model), None
     folder = AvatarFolder.load(config.avatar, mesh=False)
     identity = folder.params.body_model
-    if not identity.startswith("anny-"):
-        raise InputError(config.avatar, f"avatars of {identity!r} cannot be tracked from the "
-                         "command line; use the Python API with that body model")  # fmt: skip
-    body = load_body_model("anny-local" if identity.endswith("local_changes=all") else "anny")
+    body = load_body_model_for(identity)
     if folder.params.shape.shape != (body.shape_dim,):
         raise InputError(config.avatar, f"shape has {folder.params.shape.shape} values, "
                          f"{identity} has {body.shape_dim}")  # fmt: skip
