@@ -492,6 +492,148 @@ def _run_fit_shape(args: argparse.Namespace) -> int:
     return 0
 
 
+# -- photo, train -------------------------------------------------------------------------------
+
+
+def _add_photo(p: argparse.ArgumentParser) -> None:
+    from monoavatar.fit.pose import PoseSettings
+    from monoavatar.pipelines.photo import PhotoConfig
+    from monoavatar.pipelines.stages import InputSettings
+
+    p.description = (
+        "Make a rigged, textured avatar from one photograph of a person (dissertation Paper E, "
+        "Tex2Shape): the body fitted to mediapipe's mask and keypoints, the photo projected into "
+        "the body's UV atlas, a small network turning that partial texture into UV displacement "
+        "and normal maps (the unseen back included), the body subdivided and displaced by them. "
+        "Writes avatar.glb (skinned, textured), avatar.obj, texture.png, params.npz (usable by "
+        "'animate' and 'track --avatar'), maps/normal.png, maps/displacement.npz (metres), "
+        "preview/ (input | avatar, partial texture, maps, turntable) and report.json.")
+    p.add_argument("input", type=Path, help="a photograph (JPEG, PNG, ...) of one person, "
+                   "ideally whole and facing the camera within about 40 degrees")  # fmt: skip
+    p.add_argument("-o", "--output", required=True, type=Path, help="output folder")
+    _option(p, "--height", PoseSettings, "height", "the person's height in metres, e.g. 1.75 "
+            "(without it the avatar is up to scale)", type=float, metavar="M")  # fmt: skip
+    _option(p, "--focal", InputSettings, "focal", "focal length in pixels of the original "
+            "photo (None: a 68 degree diagonal field of view)", type=float,
+            metavar="PX")  # fmt: skip
+    _option(p, "--camera", InputSettings, "camera", "a camera.json with the photo's "
+            "intrinsics (e.g. a synth folder's)", metavar="JSON")  # fmt: skip
+    _option(p, "--weights", PhotoConfig, "weights", "photo-network weights (.safetensors; "
+            "None: the shipped ones)", metavar="FILE")  # fmt: skip
+    _option(p, "--texture-size", PhotoConfig, "texture_size", "texture pixels", type=int)
+    _option(p, "--max-side", PhotoConfig, "max_side", "larger photos are downscaled to this "
+            "many pixels on their longer side", type=int)  # fmt: skip
+    _option(p, "--device", PhotoConfig, "device", "cpu, or cuda for the network",
+            choices=("cpu", "cuda"))  # fmt: skip
+    p.add_argument("--quiet", action="store_true", help="no progress messages")
+    p.set_defaults(run=_run_photo)
+
+
+def _run_photo(args: argparse.Namespace) -> int:
+    from monoavatar.pipelines.photo import PhotoConfig, photo
+
+    config = PhotoConfig()
+    config.pose = replace(config.pose, height=args.height)
+    config.input = replace(config.input, focal=args.focal,
+                           camera=None if args.camera is None else str(args.camera))
+    config.weights = None if args.weights is None else str(args.weights)
+    config.texture_size = args.texture_size
+    config.max_side = args.max_side
+    config.device = args.device
+    config.progress = not args.quiet
+    result = photo(args.input, args.output, config)
+    report = result.report
+    print(f"avatar written to {result.folder}/")
+    print("  avatar.glb  avatar.obj  texture.png  params.npz  maps/  preview/  report.json")
+    fit = report.fit
+    print(f"  fit: silhouette IoU {fit.median_silhouette_iou:.2f}, keypoint error "
+          f"{fit.keypoint_error_px[0]:.1f} px; height {report.scale.height_m:.2f} m "
+          f"({'given' if report.scale.known else 'up to scale'}); "
+          f"time {report.seconds:.1f} s")  # fmt: skip
+    for warning in report.warnings[:5]:
+        print(f"  warning: {warning}")
+    return 0
+
+
+def _add_train(p: argparse.ArgumentParser) -> None:
+    from monoavatar.learn.photo_train import PhotoTrainConfig
+    from monoavatar.learn.training import TrainSettings
+
+    p.description = (
+        "Train a learned part from data made by our own synth. 'photo': measure the "
+        "single-image fitter's error on synthetic photos, make training photos with exact UV "
+        "maps (the partial texture built from poses perturbed as the fitter errs), train the "
+        "photo network (U-Net, MS-DSSIM + L1 + a small PatchGAN term) and write "
+        "OUT/photo.safetensors (use it with 'monoavatar photo --weights', or copy it to "
+        "monoavatar/learn/weights/). Every step resumes from what OUT already holds.")
+    p.add_argument("what", choices=("photo",), help="the part to train")
+    p.add_argument("-o", "--output", required=True, type=Path, help="working folder")
+    _option(p, "--samples", PhotoTrainConfig, "samples", "training photos", type=int)
+    _option(p, "--val", PhotoTrainConfig, "val", "validation photos", type=int)
+    _option(p, "--fit-photos", PhotoTrainConfig, "fit_photos", "photos the fitter's error is "
+            "measured on (0: train on exact poses)", type=int)  # fmt: skip
+    defaults = PhotoTrainConfig().train
+    p.add_argument("--steps", type=int, default=defaults.steps,
+                   help=f"optimiser steps (default: {defaults.steps})")
+    p.add_argument("--batch", type=int, default=defaults.batch,
+                   help=f"samples per step (default: {defaults.batch})")
+    p.add_argument("--seed", type=int, default=defaults.seed,
+                   help=f"training seed (default: {defaults.seed})")
+    p.add_argument("--gan-weight", type=float, default=defaults.gan_weight,
+                   help=f"weight of the GAN term, 0 disables it (default: {defaults.gan_weight})")
+    p.add_argument("--dssim-weight", type=float, default=defaults.dssim_weight,
+                   help=f"weight of MS-DSSIM, 0 disables it (default: {defaults.dssim_weight})")
+    p.add_argument("--device", choices=("cpu", "cuda"), default=_default(TrainSettings, "device"),
+                   help="where to train (default: %(default)s)")
+    _option(p, "--workers", PhotoTrainConfig, "workers", "processes making the data", type=int)
+    _option(p, "--max-minutes", PhotoTrainConfig, "max_minutes", "stop training after this "
+            "many minutes (resume by running the command again)", type=float)  # fmt: skip
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(run=_run_train)
+
+
+def _run_train(args: argparse.Namespace) -> int:
+    from monoavatar.learn.photo_train import PhotoTrainConfig, train_photo
+
+    config = PhotoTrainConfig(samples=args.samples, val=args.val, fit_photos=args.fit_photos,
+                              workers=args.workers, max_minutes=args.max_minutes,
+                              progress=not args.quiet)  # fmt: skip
+    config.train = replace(config.train, steps=args.steps, batch=args.batch, seed=args.seed,
+                           gan_weight=args.gan_weight, dssim_weight=args.dssim_weight,
+                           device=args.device)  # fmt: skip
+    result = train_photo(args.output, config)
+    state = "finished" if result.train.finished else "stopped (run again to resume)"
+    print(f"training {state} after {result.train.steps_done} steps; weights: {result.weights}")
+    print(f"  validation curve: {args.output / 'curve.png'}; log: "
+          f"{args.output / 'train' / 'log.jsonl'}")  # fmt: skip
+    return 0
+
+
+def _add_transfer(p: argparse.ArgumentParser) -> None:
+    from monoavatar.pipelines.transfer import TransferConfig
+
+    p.description = (
+        "Garment transfer (dissertation Sec. E.6.5): the person of avatar folder A (face and "
+        "body shape) in the clothes of avatar folder B, by exchanging their UV displacement "
+        "maps and textures outside the face. A and B are 'photo' or 'reconstruct' folders of "
+        "the same body model; the result is an avatar folder like 'photo' writes.")
+    p.add_argument("a", type=Path, help="the avatar folder whose person is kept")
+    p.add_argument("b", type=Path, help="the avatar folder whose clothes are taken")
+    p.add_argument("-o", "--output", required=True, type=Path, help="output folder")
+    _option(p, "--border", TransferConfig, "border", "blend width between A's face and B's "
+            "clothes, texels of the 256² maps", type=int)  # fmt: skip
+    p.set_defaults(run=_run_transfer)
+
+
+def _run_transfer(args: argparse.Namespace) -> int:
+    from monoavatar.pipelines.transfer import TransferConfig, transfer
+
+    result = transfer(args.a, args.b, args.output, TransferConfig(border=args.border))
+    print(f"avatar written to {result.folder}/ (turntable: "
+          f"{result.folder / 'preview' / 'turntable.png'})")  # fmt: skip
+    return 0
+
+
 # -- animate, demo, bench ---------------------------------------------------------------------
 
 
@@ -580,6 +722,13 @@ def _add_bench(p: argparse.ArgumentParser) -> None:
                    help="instead, the tracking table (Paper A, Table A.1): 'monoavatar track' "
                    "on the suite's walk and jog sequences (about 7 minutes; with --quick one "
                    "short walk) into OUT/tracking.md and OUT/tracking.json")  # fmt: skip
+    p.add_argument("--photo", action="store_true",
+                   help="instead, the photo table (Paper E, Table E.1): 'monoavatar photo' on "
+                   "12 sealed synthetic test photos (about 3 minutes; with --quick two) into "
+                   "OUT/photo.md, OUT/photo.json and the plots OUT/photo_yaw.png, "
+                   "OUT/photo_fill.png")  # fmt: skip
+    p.add_argument("--weights", type=Path, default=None, metavar="FILE",
+                   help="with --photo: photo-network weights (default: the shipped ones)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(run=_run_bench)
 
@@ -597,6 +746,14 @@ def _run_bench(args: argparse.Namespace) -> int:
         results = run_tracking_bench(args.output, quick=args.quick, progress=not args.quiet)
         print(render_tracking_markdown(results["sequences"]))
         print(f"results: {args.output / 'tracking.md'} and {args.output / 'tracking.json'}")
+        return 0
+    if args.photo:
+        from monoavatar.bench.photo import render_photo_markdown, run_photo_bench
+
+        results = run_photo_bench(args.output, quick=args.quick, progress=not args.quiet,
+                                  weights=None if args.weights is None else str(args.weights))
+        print(render_photo_markdown(results["photos"]))
+        print(f"results: {args.output / 'photo.md'} and {args.output / 'photo.json'}")
         return 0
     run_bench(args.output, quick=args.quick, subjects=args.subjects,
               gt_poses=not args.no_gt_poses, progress=not args.quiet,
@@ -619,6 +776,10 @@ VERBS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None]]] = {
                   "(Sec. B.3.3)", _add_fit_shape),
     "track": ("3D motion of a person through a video by optical flow (npz, bvh, glb)",
               _add_track),
+    "photo": ("one photograph of a person → a rigged, textured avatar (Paper E)", _add_photo),
+    "train": ("train a learned part (photo) on data made by synth", _add_train),
+    "transfer": ("dress the person of one avatar folder in another's clothes (Sec. E.6.5)",
+                 _add_transfer),
     "animate": ("re-pose an avatar with a built-in motion or another video's poses "
                 "(animated glb)", _add_animate),
     "bench": ("measure accuracy and speed on a fixed synthetic suite, beside the dissertation",

@@ -458,3 +458,24 @@ def test_damaged_poses_files_are_refused_with_a_typed_error(tmp_path: Path) -> N
         PoseTrack.load(path)
     with pytest.raises(InputNotFoundError):
         PoseTrack.load(tmp_path / "missing.npz")
+
+
+def test_fit_photo_matches_one_synthetic_photo(anny32, anny_local) -> None:  # type: ignore[no-untyped-def]
+    """One photo (exact mask, keypoints): the fitted body overlaps the person (IoU) and its
+    height matches the photo's within the scale the height option fixes."""
+    from monoavatar.fit.pose import fit_photo
+    from monoavatar.learn.photo_data import PhotoDataSettings, render_photo
+    from tests.fit.observations import scene_observations
+
+    scene = render_photo(anny_local, 3, PhotoDataSettings(image_size=320, texture_size=128))
+    obs = scene_observations(scene.mask[None], scene.keypoints[None], scene.camera)
+    height = float(np.ptp(scene.subject.rest_vertices[:, 1].numpy()))
+    track = fit_photo(anny32, obs, PoseSettings(height=height))
+    assert track.poses.shape == (1, anny32.num_joints, 3)
+    assert track.silhouette_iou[0] > 0.8
+    assert not track.failed[0]
+    assert abs(track.height - height) < 0.03
+    none = scene_observations(scene.mask[None], scene.keypoints[None], scene.camera)
+    none.no_person[0] = True
+    with pytest.raises(PoseFitError, match="no person"):
+        fit_photo(anny32, none)

@@ -316,3 +316,31 @@ def test_registration_settings_are_checked() -> None:
         TextureSettings(workers=0)
     with pytest.raises(TextureError, match="max_flow"):
         TextureSettings(max_flow=0.0)
+
+
+def test_mirror_fills_unseen_texels_from_their_mirror_image() -> None:
+    """Texels never seen whose mirror image (x → −x) lies on a seen texel take its colour;
+    others stay unknown."""
+    from monoavatar.texture.backproject import _mirror
+
+    points = np.array([[0.1, 0.0, 0.0], [-0.1, 0.0, 0.0], [0.3, 0.5, 0.0], [-0.2, 0.5, 0.0]])
+    colour = np.array([[1.0, 0, 0], [0, 0, 0], [0, 1.0, 0], [0, 0, 0]])
+    seen = np.array([True, False, True, False])
+    out, now = _mirror(points, colour, seen, radius=0.01)
+    assert now.tolist() == [True, True, True, False]  # texel 3's mirror (0.2, 0.5) is unseen
+    np.testing.assert_array_equal(out[1], [1.0, 0, 0])
+    np.testing.assert_array_equal(out[3], [0, 0, 0])
+
+
+def test_front_back_mirror_matches_on_the_image_plane() -> None:
+    """A texel on the back takes the colour of the front texel at the same (x, y), unless it
+    is not allowed (e.g. the face's back)."""
+    from monoavatar.texture.backproject import _mirror
+
+    points = np.array([[0.1, 1.0, 0.12], [0.1, 1.0, -0.08], [0.3, 1.6, 0.1], [0.3, 1.6, -0.1]])
+    colour = np.array([[1.0, 0, 0], [0, 0, 0], [0, 1.0, 0], [0, 0, 0]])
+    seen = np.array([True, False, True, False])
+    allowed = np.array([True, True, True, False])
+    out, now = _mirror(points, colour, seen, 0.01, axis=2, allowed=allowed)
+    assert now.tolist() == [True, True, True, False]
+    np.testing.assert_array_equal(out[1], [1.0, 0, 0])

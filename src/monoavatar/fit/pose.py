@@ -449,6 +449,46 @@ def _fit_poses(body: BodyModel, obs: Observations, settings: PoseSettings,
     )
 
 
+def fit_photo(body: BodyModel, obs: Observations, settings: PoseSettings | None = None
+              ) -> PoseTrack:  # fmt: skip
+    """Fit one shape and one pose to a single photograph (frame 0 of ``obs``): step 1 on that
+    frame alone, then one window fit with the shape fixed, re-fitted from alternative starts
+    when the energy stays high (Sec. B.3.2, with N = 1).
+
+    Raises:
+        PoseFitError: no person in the photo.
+    """
+    settings = settings or PoseSettings()
+    if len(obs) < 1 or bool(obs.no_person[0]):
+        raise PoseFitError("no person was found in the photo")
+    start = time.perf_counter()
+    with torch_threads(settings.threads):
+        prior = apose_prior(body)
+        frame_ids = np.array([0])
+        shape, poses, trans = fit_initial(body, obs, frame_ids, settings, prior)
+        with torch.no_grad():
+            rest, joints = body.rest_shape(shape[None])
+        ctx = pe.energy_context(body, obs.camera, settings, prior, rest[0], joints[0])
+        sub = pe.make_subset(body, rest[0], joints[0],
+                             pe.subset_ids(body, settings.silhouette_points, settings.seed))
+        frames = pe.frames_at(obs, frame_ids, settings, body.dtype)
+        poses, trans, energy = pe.fit_window(ctx, sub, frames, poses, trans, None)
+        if energy[0] > settings.fail_energy:
+            poses[0], trans[0], energy[0] = refit_frame(ctx, sub, frames, poses[0], trans[0],
+                                                        float(energy[0]))  # fmt: skip
+        kp_err, iou = evaluate_fit(body, shape, poses, trans, obs, settings.min_confidence)
+        with torch.no_grad():
+            height = float(_rest_height(body, shape))
+    return PoseTrack(
+        body_model=body.identity, shape=shape.double().numpy(), poses=poses,
+        translations=trans, camera=obs.camera, frame_indices=obs.frame_indices[:1],
+        keypoint_error=kp_err, silhouette_iou=iou, energy=energy,
+        failed=np.array([not energy[0] <= settings.fail_energy]), height=height,
+        scale_known=settings.height is not None, seconds=time.perf_counter() - start,
+        timings={"fit": time.perf_counter() - start},
+    )  # fmt: skip
+
+
 def refine_poses(
     body: BodyModel,
     obs: Observations,

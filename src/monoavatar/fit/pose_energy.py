@@ -29,10 +29,15 @@ from torch import Tensor
 
 from monoavatar.body import BodyModel, lbs
 from monoavatar.core.camera import PinholeCamera
+from monoavatar.core.errors import MonoavatarError
 from monoavatar.core.landmarks import MEDIAPIPE_MIRROR
 from monoavatar.fit import energies
 from monoavatar.fit.prior import PosePrior
 from monoavatar.perception.observations import Observations
+
+
+class PoseSettingsError(MonoavatarError, ValueError):
+    """A pose-fitting option out of its range (the message names it)."""
 
 
 @dataclass
@@ -74,7 +79,7 @@ class PoseSettings:
 
     def __post_init__(self) -> None:
         if self.height is not None and not 0.5 <= self.height <= 2.6:
-            raise ValueError(
+            raise PoseSettingsError(
                 f"height must be in metres, between 0.5 and 2.6, got {self.height} "
                 "(a value like 175 is centimetres: use 1.75)"
             )
@@ -82,7 +87,8 @@ class PoseSettings:
                      "refine_iterations", "pyramid_levels", "silhouette_points",
                      "boundary_points"):  # fmt: skip
             if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
+                raise PoseSettingsError(f"{name} must be at least 1, got "
+                                        f"{getattr(self, name)}")  # fmt: skip
 
 
 # -- the posed model at a subset of vertices ---------------------------------------------------

@@ -346,6 +346,8 @@ class AvatarFolder:
             indices; None when loaded (``avatar.obj`` is read without them).
         texture: (S, S, 3) uint8 ``texture.png``, or None.
         previews: ``preview/NAME.png`` images (H, W, 3) uint8 to write; empty when loaded.
+        extras: further files to write, relative path (one folder level at most, e.g.
+            ``maps/normal.png``) → content; empty when loaded.
         path: the folder it was loaded from or saved to.
     """
 
@@ -357,6 +359,7 @@ class AvatarFolder:
     face_uv: np.ndarray | None = None
     texture: np.ndarray | None = None
     previews: dict[str, np.ndarray] = field(default_factory=dict)
+    extras: dict[str, bytes] = field(default_factory=dict)
     path: Path | None = None
 
     def save(self, folder: str | Path, glb: Any = None) -> dict[str, Path]:
@@ -390,7 +393,14 @@ class AvatarFolder:
                 (stage / "preview").mkdir()
             for name, image in self.previews.items():
                 Image.fromarray(image).save(stage / "preview" / f"{name}.png")
+            for name, payload in self.extras.items():
+                (stage / name).parent.mkdir(parents=True, exist_ok=True)
+                (stage / name).write_bytes(payload)
             files: dict[str, Path] = {}
+            for name in self.extras:
+                (out / name).parent.mkdir(parents=True, exist_ok=True)
+                os.replace(stage / name, out / name)
+                files[name] = out / name
             for name in names:
                 os.replace(stage / name, out / name)
                 files[name] = out / name

@@ -1,5 +1,5 @@
-"""Pictures of a finished avatar: overlays of the input and the re-posed avatar, and a
-turntable of the albedo."""
+"""Pictures of a finished avatar: overlays of the input and the re-posed avatar, turntables
+of the albedo (of the body model's mesh or of the once-subdivided one), UV maps as pictures."""
 
 from __future__ import annotations
 
@@ -10,7 +10,8 @@ from monoavatar.body import BodyModel
 from monoavatar.core.camera import PinholeCamera
 from monoavatar.fit.pose import PoseTrack
 from monoavatar.fit.shape import CanonicalShape
-from monoavatar.pipelines.stages import Inputs, posed_avatar
+from monoavatar.learn.uvmaps import UVLayout
+from monoavatar.pipelines.stages import Inputs, posed_avatar, uint8_image
 from monoavatar.render import rasterize, render_textured
 from monoavatar.texture.backproject import UVTexture
 
@@ -55,3 +56,37 @@ def previews(body: BodyModel, inputs: Inputs, track: PoseTrack, shape: Canonical
         tiles.append(render_avatar(verts, body, tex, cam, np.full((256, 256, 3), 0.92)))
     grid = np.concatenate([np.concatenate(tiles[:4], 1), np.concatenate(tiles[4:], 1)], 0)
     return {"overlays": sheet, "turntable": grid}
+
+
+def render_fine(vertices: np.ndarray, layout: UVLayout, texture: np.ndarray,
+                camera: PinholeCamera, background: np.ndarray,
+                sh: np.ndarray | None = None) -> np.ndarray:  # fmt: skip
+    """(H, W, 3) uint8: the fine mesh's vertices (V_f, 3) with ``texture`` (S, S, 3) in
+    [0, 1], lit by ``sh`` (3, 9) or unlit, over ``background`` (H, W, 3) in [0, 1]."""
+    sub = layout.subdivision
+    v = torch.as_tensor(vertices, dtype=torch.float64)
+    frags = rasterize(v, sub.faces, camera)
+    image = render_textured(v, sub.faces, frags, sub.uv, sub.face_uv,
+                            torch.as_tensor(texture, dtype=torch.float64),
+                            sh=None if sh is None else torch.as_tensor(sh, dtype=torch.float64),
+                            background=torch.as_tensor(background, dtype=torch.float64))
+    return uint8_image(image.numpy())
+
+
+def fine_turntable(vertices: np.ndarray, layout: UVLayout, texture: np.ndarray, views: int = 8,
+              size: int = 256) -> np.ndarray:  # fmt: skip
+    """The canonical avatar from ``views`` directions about the vertical, two rows."""
+    centre = 0.5 * (vertices.min(0) + vertices.max(0))
+    height = float(np.ptp(vertices[:, 1]))
+    tiles = []
+    for angle in np.linspace(0, 2 * np.pi, views, endpoint=False):
+        eye = centre + 1.7 * height * np.array([np.sin(angle), 0.0, np.cos(angle)])
+        cam = PinholeCamera.look_at(eye, centre, np.array([0.0, 1.0, 0.0]), 1.25 * size,
+                                    size, size)  # fmt: skip
+        tiles.append(render_fine(vertices, layout, texture, cam, np.full((size, size, 3), 0.92)))
+    half = (views + 1) // 2
+    rows = [np.concatenate(tiles[:half], 1), np.concatenate(tiles[half:], 1)]
+    if rows[1].shape[1] < rows[0].shape[1]:
+        pad = np.full((size, rows[0].shape[1] - rows[1].shape[1], 3), 235, np.uint8)
+        rows[1] = np.concatenate([rows[1], pad], 1)
+    return np.concatenate(rows, 0)

@@ -14,10 +14,7 @@ and settings, as perception is: a second run with the same input and settings re
 
 from __future__ import annotations
 
-import os
-import platform
 import resource
-import tempfile
 import time
 import warnings
 from dataclasses import asdict, dataclass, field
@@ -49,6 +46,8 @@ from monoavatar.pipelines.stages import (
     StageTimer,
     flow_stage,
     load_inputs,
+    machine,
+    output_folder,
     pose_stage,
     refine_stage,
     shape_stage,
@@ -179,23 +178,6 @@ def fit_avatar(body: BodyModel, inputs: Inputs, config: ReconstructConfig, timer
 # -- report and export ------------------------------------------------------------------------
 
 
-def _check_output(out_dir: Path) -> None:
-    """Fail early, before any work, when the output folder cannot be written."""
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-        fd, probe = tempfile.mkstemp(dir=out_dir, prefix=".write-test-")
-        os.close(fd)
-        os.unlink(probe)
-    except OSError as exc:
-        raise PipelineError(f"cannot write to the output folder {out_dir}: {exc}") from exc
-
-
-def _machine() -> dict[str, object]:
-    return {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
-            "torch_threads": torch.get_num_threads(), "python": platform.python_version(),
-            "torch": torch.__version__}  # fmt: skip
-
-
 def _report(input_path: str | Path, body: BodyModel, inputs: Inputs, track: PoseTrack,
             shape: CanonicalShape, texture: UVTexture, config: ReconstructConfig,
             caught: list[str], timings: dict[str, float]) -> Report:  # fmt: skip
@@ -224,7 +206,7 @@ def _report(input_path: str | Path, body: BodyModel, inputs: Inputs, track: Pose
         texture=TextureSummary(albedo=texture.albedo, size=texture.size,
                                coverage=float(texture.coverage[texture.chart].mean())),
         warnings=caught,
-        machine=_machine(),
+        machine=machine(),
         timings=timings,
     )
 
@@ -261,18 +243,8 @@ def reconstruct(input_path: str | Path, out_dir: str | Path,
     """
     config = config or ReconstructConfig()
     config.validate()
-    out = Path(out_dir)
-    created = not out.exists()
-    _check_output(out)
-    try:
+    with output_folder(out_dir) as out:
         return _reconstruct(input_path, out, config)
-    except BaseException:
-        if created:  # nothing of this run is left behind: the folder it made, if still empty
-            try:
-                out.rmdir()
-            except OSError:
-                pass
-        raise
 
 
 def _reconstruct(input_path: str | Path, out: Path, config: ReconstructConfig

@@ -17,12 +17,15 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
+import tempfile
 import time
 import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -34,9 +37,13 @@ from monoavatar.fit.flow_refine import FlowRefineSettings, refine_poses_with_flo
 from monoavatar.fit.pose import PoseSettings, PoseTrack, evaluate_fit, fit_poses, refine_poses
 from monoavatar.fit.shape import CanonicalShape, ShapeSettings, fit_consensus_shape
 from monoavatar.io.frames import Frames, FrameSelection
+from monoavatar.learn.uvmaps import UVLayout
 from monoavatar.perception.observations import Observations
 from monoavatar.perception.pipeline import PerceptionSettings
 from monoavatar.texture.backproject import TextureSettings, UVTexture, build_texture
+
+if TYPE_CHECKING:
+    from monoavatar.io.gltf import SkinnedMesh
 
 __all__ = [
     "PERCEPTION",
@@ -76,6 +83,46 @@ class StageTimer:
             yield
         finally:
             self.seconds[stage] = self.seconds.get(stage, 0.0) + time.perf_counter() - t0
+
+
+def check_output_folder(out_dir: Path) -> None:
+    """Fail early, before any work, when the output folder cannot be written (it is created
+    when missing)."""
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(dir=out_dir, prefix=".write-test-")
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise PipelineError(f"cannot write to the output folder {out_dir}: {exc}") from exc
+
+
+@contextmanager
+def output_folder(out_dir: str | Path) -> Iterator[Path]:
+    """The output folder, checked writable before any work (:func:`check_output_folder`);
+    when the block fails, the folder is removed again if this run created it and it is still
+    empty, so that nothing of a failed run is left behind."""
+    out = Path(out_dir)
+    created = not out.exists()
+    check_output_folder(out)
+    try:
+        yield out
+    except BaseException:
+        if created:
+            try:
+                out.rmdir()
+            except OSError:
+                pass
+        raise
+
+
+def machine() -> dict[str, object]:
+    """What the run ran on, for ``report.json``."""
+    import platform
+
+    return {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
+            "torch_threads": torch.get_num_threads(), "python": platform.python_version(),
+            "torch": torch.__version__}  # fmt: skip
 
 
 # -- inputs and perception --------------------------------------------------------------------
@@ -332,3 +379,88 @@ def flow_stage(body: BodyModel, inputs: Inputs, track: PoseTrack, shape: Canonic
         texture.as_float(), sh if texture.albedo else None, settings, pose_settings,
         progress=progress,
     )  # fmt: skip
+
+
+# -- the once-subdivided avatar (photo, transfer) ------------------------------------------
+
+
+def uint8_image(x: np.ndarray) -> np.ndarray:
+    """Float image in [0, 1] → uint8 (clipped, rounded)."""
+    return (np.clip(x, 0.0, 1.0) * 255 + 0.5).astype(np.uint8)
+
+
+def map_pictures(maps: np.ndarray, chart: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The displacement map (±DISPLACEMENT_SCALE → 0…255 per axis) and the normal map
+    (±1 → 0…255) as (S, S, 3) uint8 pictures, grey outside the charts."""
+    disp = uint8_image(maps[..., :3] * 0.5 + 0.5)
+    normals = uint8_image(maps[..., 3:] * 0.5 + 0.5)
+    disp[~chart] = 128
+    normals[~chart] = 128
+    return disp, normals
+
+
+def png_bytes(image: np.ndarray) -> bytes:
+    """(H, W, 3) or (H, W) uint8 → the bytes of a PNG file."""
+    import io
+
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray(image).save(buf, format="PNG")
+    return buf.getvalue()
+
+
+def npz_bytes(**arrays: np.ndarray) -> bytes:
+    """Arrays → the bytes of a compressed npz file."""
+    import io
+
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **arrays)
+    return buf.getvalue()
+
+
+def pose_fine(body: BodyModel, layout: UVLayout, track: PoseTrack, fine: np.ndarray
+              ) -> np.ndarray:  # fmt: skip
+    """The fine canonical surface (V_f, 3) posed as in ``track``'s first frame: (V_f, 3) world
+    metres (linear blend skinning with the subdivided weights)."""
+    from monoavatar.body import lbs
+
+    with torch.no_grad():
+        out = body(shape=torch.as_tensor(track.shape, dtype=body.dtype)[None],
+                   pose=torch.as_tensor(track.poses[:1], dtype=body.dtype),
+                   translation=torch.as_tensor(track.translations[:1], dtype=body.dtype))
+    v = torch.as_tensor(fine, dtype=body.dtype)[None]
+    return np.asarray(lbs.skin(v, layout.subdivision.weights.to(body.dtype),
+                               out.transforms)[0].double().numpy())  # fmt: skip
+
+
+def fine_skinned_mesh(body: BodyModel, layout: UVLayout, shape: np.ndarray,
+                      vertices: np.ndarray, texture: np.ndarray | None) -> SkinnedMesh:
+    """The once-subdivided avatar (vertices (V_f, 3), canonical metres) rigged with the body's
+    skeleton at ``shape`` and the subdivided skinning weights, for ``avatar.glb``."""
+    from monoavatar.io.gltf import SkinnedMesh
+
+    sub = layout.subdivision
+    with torch.no_grad():
+        _, rest_joints = body.rest_shape(torch.as_tensor(shape, dtype=body.dtype)[None])
+    return SkinnedMesh(vertices=vertices, faces=sub.faces.numpy().astype(np.int64),
+                       uv=sub.uv.double().numpy(), face_uv=sub.face_uv.numpy().astype(np.int64),
+                       skin_weights=sub.weights.double().numpy(),
+                       joint_names=tuple(body.joint_names),
+                       parents=tuple(int(p) for p in body.parents),
+                       rest_joints=rest_joints[0].double().numpy(), texture=texture)  # fmt: skip
+
+
+def map_files(maps: np.ndarray, chart: np.ndarray, visible: np.ndarray | None) -> dict[str, bytes]:
+    """``maps/normal.png`` and ``maps/displacement.npz`` of UV maps (S, S, 6) (displacement /
+    DISPLACEMENT_SCALE, normals), as an avatar folder's extra files."""
+    from monoavatar.learn.uvmaps import DISPLACEMENT_SCALE
+
+    _, normal_png = map_pictures(maps, chart)
+    arrays = dict(displacement=(maps[..., :3] * DISPLACEMENT_SCALE).astype(np.float32),
+                  normal=maps[..., 3:].astype(np.float32), chart=chart,
+                  units=np.array("metres, canonical frame (Y up, facing +Z); glTF UV layout "
+                                 "(origin top-left)"))  # fmt: skip
+    if visible is not None:
+        arrays["visible"] = visible
+    return {"maps/normal.png": png_bytes(normal_png), "maps/displacement.npz": npz_bytes(**arrays)}

@@ -94,6 +94,7 @@ class TextureSettings:
             sampled again there. 0 samples each view where the fitted pose projects it.
         max_flow: pixels; registration flow longer than this is not trusted (the sample keeps
             its projected position).
+        mirror_radius: metres; see ``mirror_vertices`` of :func:`build_texture`.
         workers: threads that sample frames side by side (rasterising, registration flow and
             sampling; the samples are added to the median in frame order, so the texture
             depends on the count only through rounding, see
@@ -115,6 +116,7 @@ class TextureSettings:
     register_rounds: int = 1
     max_flow: float = 8.0
     workers: int = 2
+    mirror_radius: float = 0.01
 
     def __post_init__(self) -> None:
         if self.size < 2:
@@ -452,6 +454,8 @@ def build_texture(
     sh: Tensor | np.ndarray | None = None,
     settings: TextureSettings | None = None,
     progress: bool = False,
+    mirror_vertices: Tensor | np.ndarray | None = None,
+    front_back: np.ndarray | None = None,
 ) -> UVTexture:
     """Build a texture from key frames: median of the most orthogonal views, seams filled.
 
@@ -467,6 +471,13 @@ def build_texture(
             :func:`monoavatar.texture.lighting.estimate_sh` estimates it.
         settings: :class:`TextureSettings`; defaults used when None.
         progress: show a progress bar over the frames.
+        mirror_vertices: (V, 3) the avatar's canonical vertices (left–right symmetric about
+            x = 0): with them, texels never seen take the colour of the seen texel nearest
+            their mirror image (x → −x) when one lies within ``settings.mirror_radius``
+            metres, before the harmonic fill (a single photo sees one side of a turned body).
+        front_back: (V,) bool, with ``mirror_vertices``: the vertices whose texels still unseen
+            after that then take the colour of their front–back mirror image (z → −z) — a
+            garment's back is most like its front; leave the face out.
     Returns:
         :class:`UVTexture` of ``settings.size`` texels.
     Raises:
@@ -516,6 +527,14 @@ def build_texture(
                 top.add(views)
         colour, count = top.median()
         seen = count > 0
+        if mirror_vertices is not None and seen.any() and not seen.all():
+            canonical = as_array(mirror_vertices, np.float64, "mirror_vertices")
+            points = atlas.points(canonical, f)
+            colour, seen = _mirror(points, colour, seen, settings.mirror_radius)
+            if front_back is not None:
+                allowed = np.asarray(front_back, bool)[f[atlas.face]].all(axis=1)
+                colour, seen = _mirror(points, colour, seen, settings.mirror_radius,
+                                       axis=2, allowed=allowed)  # fmt: skip
         if settings.fill and seen.any() and not seen.all():
             if graph is None:
                 graph = texel_graph(atlas, f, t, fu, verts[0])
@@ -525,11 +544,11 @@ def build_texture(
         image = dilate_texture(
             _scatter(atlas, colour, np.float32), valid.reshape(work, work), settings.dilation
         )
-    best = np.where(seen, top.cos.max(axis=0), 0.0).astype(np.float32)
+    best = np.where(count > 0, top.cos.max(axis=0), 0.0).astype(np.float32)
     if not settings.fill:  # unseen chart texels stay black
         image[atlas.chart & ~_scatter(atlas, seen, np.bool_)] = 0.0
     maps = {
-        "coverage": _scatter(atlas, seen, np.bool_),
+        "coverage": _scatter(atlas, count > 0, np.bool_),
         "chart": atlas.chart,
         "views": _scatter(atlas, count, np.int16),
         "best_cos": _scatter(atlas, best, np.float32),
@@ -545,6 +564,44 @@ def build_texture(
         albedo=lighting is not None,
         sample_size=work,
     )
+
+
+def _mirror(points: np.ndarray, colour: np.ndarray, seen: np.ndarray, radius: float,
+            axis: int = 0, allowed: np.ndarray | None = None
+            ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Unseen texels (``seen`` False; and ``allowed``, (N,) bool, when given) whose mirror
+    image through the plane ``points[:, axis] = 0`` of their canonical point (N, 3) lies within
+    ``radius`` metres of a seen texel take that texel's colour (N, 3); returns the colours
+    and the texels now known. (With ``axis=2`` the nearest seen texel is searched in the
+    plane x, y only, as a body's back and front are not at mirrored depths.)"""
+    from scipy.spatial import cKDTree
+
+    known = np.flatnonzero(seen)
+    unknown = np.flatnonzero(~seen if allowed is None else ~seen & allowed)
+    flip = np.ones(3)
+    flip[axis] = -1.0
+    if axis == 2:  # front ↔ back: match on (x, y) among texels on the other side
+        side = points[:, 2] >= 0
+        out, now = colour.copy(), seen.copy()
+        for front in (True, False):
+            src = known[side[known] == front]
+            dst = unknown[side[unknown] != front]
+            if len(src) == 0 or len(dst) == 0:
+                continue
+            dist, nearest = cKDTree(points[src, :2]).query(points[dst, :2],
+                                                           distance_upper_bound=radius)
+            hit = np.isfinite(dist)
+            out[dst[hit]] = colour[src[nearest[hit]]]
+            now[dst[hit]] = True
+        return out, now
+    mirrored = points[unknown] * flip
+    dist, nearest = cKDTree(points[known]).query(mirrored, distance_upper_bound=radius)
+    hit = np.isfinite(dist)
+    out = colour.copy()
+    out[unknown[hit]] = colour[known[nearest[hit]]]
+    now = seen.copy()
+    now[unknown[hit]] = True
+    return out, now
 
 
 def _scatter(atlas: TexelAtlas, values: np.ndarray, dtype: type) -> np.ndarray:

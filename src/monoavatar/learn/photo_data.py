@@ -1,0 +1,467 @@
+"""Training data for ``monoavatar photo`` (Paper E): synthetic photographs with exact UV maps.
+
+A sample is one synthetic subject (:mod:`monoavatar.synth.subjects`: body with local shape
+changes, garments, hair, a procedural texture) in a varied standing pose, turned up to
+``yaw_deg`` about the vertical, ``distance_m`` from the camera, under random SH lighting, over a
+random background, with sensor noise. From it:
+
+* **input** (7, S, S): the *partial texture* — the photo projected into the UV atlas through
+  the body model posed as our single-image fitter would pose it (the true pose and shape
+  perturbed by the fitter's measured error, :class:`FitError`), with rasteriser visibility
+  (Sec. E.5.3, the "3D pose variant" of Sec. E.6.3) — as RGB in [−1, 1] (0 where unseen), the
+  visibility mask, and the canonical position of each texel on the average body (metres),
+  which tells the network where on the body a texel is;
+* **target** (6, S, S): the vector displacement from the body of the subject's six phenotypes
+  to its clothed surface (divided by :data:`~monoavatar.learn.uvmaps.DISPLACEMENT_SCALE`) and
+  the clothed surface's normals, canonical frame (:func:`displacement_targets`);
+* **weight** (1, S, S): 1 on the chart texels.
+
+Subjects, poses, lighting and photos are drawn from one seed per sample, so a dataset is
+reproducible and its train / validation / test parts (disjoint seed ranges) never share a
+subject.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from monoavatar.body import BodyModel, lbs
+from monoavatar.core.camera import PinholeCamera
+from monoavatar.core.errors import MonoavatarError
+from monoavatar.learn.uvmaps import UVLayout, displacement_targets, rasterise_vertex_values
+from monoavatar.synth.options import BACKGROUNDS, NOISE_LEVELS
+from monoavatar.synth.scene import degrade, make_background, render_frame
+from monoavatar.synth.subjects import Subject, build_subject, sample_subject
+from monoavatar.texture.backproject import TextureSettings, build_texture
+
+__all__ = [
+    "FitError",
+    "PhotoDataSettings",
+    "PhotoScene",
+    "PhotoSample",
+    "network_input",
+    "partial_texture",
+    "photo_sample",
+    "render_photo",
+    "template_positions",
+]
+
+INPUT_CHANNELS = 7
+TARGET_CHANNELS = 6
+PHENOTYPES = 6
+
+
+class PhotoDataError(MonoavatarError, ValueError):
+    """Invalid data settings or a damaged data folder."""
+
+
+@dataclass(frozen=True)
+class PhotoDataSettings:
+    """How training photos are drawn.
+
+    Attributes:
+        map_size: S, texels per side of the UV maps.
+        image_size: photo width and height, pixels.
+        yaw_deg: the body is turned uniformly within ±this about the vertical.
+        distance_m: camera distance range, metres; with the fixed ``focal_ratio`` the person
+            fills from about 80 % of the image height (nearest) to about 35 % (farthest).
+        focal_ratio: focal length / image height.
+        noise: sensor noise levels drawn from (:data:`monoavatar.synth.options.NOISE_LEVELS`).
+        texture_size: side of the subject's procedural texture.
+    """
+
+    map_size: int = 256
+    image_size: int = 512
+    yaw_deg: float = 40.0
+    distance_m: tuple[float, float] = (2.6, 6.0)
+    focal_ratio: float = 1.25
+    noise: tuple[str, ...] = ("none", "low", "medium")
+    texture_size: int = 512
+
+    def validate(self) -> None:
+        if self.map_size < 16 or self.map_size % 32:
+            raise PhotoDataError(f"map_size must be a multiple of 32, got {self.map_size}")
+        if self.image_size < 64:
+            raise PhotoDataError(f"image_size must be at least 64, got {self.image_size}")
+        if not 0 < self.distance_m[0] <= self.distance_m[1]:
+            raise PhotoDataError(f"distance_m must be an increasing positive range, got "
+                                 f"{self.distance_m}")  # fmt: skip
+        unknown = [n for n in self.noise if n not in NOISE_LEVELS]
+        if unknown:
+            raise PhotoDataError(f"unknown noise levels {unknown}; choose from "
+                                 f"{list(NOISE_LEVELS)}")  # fmt: skip
+
+
+@dataclass(frozen=True)
+class FitError:
+    """The single-image fitter's error, as independent Gaussians (fitted to its residuals on
+    synthetic photos, :func:`monoavatar.learn.fit_error.measure_fit_error`).
+
+    Attributes:
+        rotation_std: (J, 3) radians, std of each joint's residual rotation (axis-angle of
+            ``R_true^T R_fit``; joint 0 in world axes).
+        translation_std: (3,) metres, std of the root translation's residual (camera axes).
+        shape_std: (6,) std of the phenotype residual.
+        photos: how many photos it was measured on.
+    """
+
+    rotation_std: np.ndarray
+    translation_std: np.ndarray
+    shape_std: np.ndarray
+    photos: int = 0
+
+    @staticmethod
+    def none(num_joints: int) -> FitError:
+        """No error: the partial texture from the true pose (the ablation)."""
+        return FitError(np.zeros((num_joints, 3)), np.zeros(3), np.zeros(PHENOTYPES))
+
+    def to_json(self) -> dict[str, object]:
+        return {"rotation_std": self.rotation_std.tolist(),
+                "translation_std": self.translation_std.tolist(),
+                "shape_std": self.shape_std.tolist(), "photos": self.photos}  # fmt: skip
+
+    @staticmethod
+    def from_json(data: dict[str, object]) -> FitError:
+        try:
+            return FitError(np.asarray(data["rotation_std"], np.float64),
+                            np.asarray(data["translation_std"], np.float64),
+                            np.asarray(data["shape_std"], np.float64),
+                            int(data.get("photos", 0)))  # type: ignore[call-overload]  # fmt: skip
+        except (KeyError, TypeError, ValueError) as exc:
+            raise PhotoDataError(f"not a fit-error record: {exc}") from exc
+
+    def perturb(self, rng: np.random.Generator, pose: np.ndarray, shape: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+        """A pose (J, 3) and phenotypes (6,) as the fitter might find them, and the offset (3,)
+        of the root joint, metres in camera axes, at the true body's scale (the caller scales
+        the whole placement by the perturbed body's height, as an up-to-scale fit would)."""
+        noise = rng.standard_normal(pose.shape) * self.rotation_std
+        r = lbs.axis_angle_to_matrix(torch.as_tensor(pose, dtype=torch.float64))
+        dr = lbs.axis_angle_to_matrix(torch.as_tensor(noise, dtype=torch.float64))
+        # R_fit = R_true dR, as measured (the root's residual in world axes)
+        pose = lbs.matrix_to_axis_angle(r @ dr).numpy()
+        root = rng.standard_normal(3) * self.translation_std
+        return pose, shape + rng.standard_normal(PHENOTYPES) * self.shape_std, root
+
+
+@dataclass
+class PhotoScene:
+    """One rendered synthetic photograph and its truth.
+
+    Attributes:
+        image: (H, W, 3) uint8 photo; mask: (H, W) bool person.
+        camera: its camera (world → camera, OpenCV).
+        subject: the ground-truth subject (fine clothed canonical mesh).
+        pose: (J, 3) axis-angle; translation: (3,) metres.
+        keypoints: (33, 3) x, y px and visibility (mediapipe order).
+        yaw: radians the body is turned from facing the camera.
+        distance: metres from the camera.
+    """
+
+    image: np.ndarray
+    mask: np.ndarray
+    camera: PinholeCamera
+    subject: Subject
+    pose: np.ndarray
+    translation: np.ndarray
+    keypoints: np.ndarray
+    yaw: float
+    distance: float
+    posed: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 3)))
+
+
+def render_photo(body: BodyModel, seed: int, settings: PhotoDataSettings) -> PhotoScene:
+    """The synthetic photograph of seed ``seed``: subject, pose, camera, lighting, background
+    and noise all drawn from it (``body`` is the local-changes Anny of synth)."""
+    from monoavatar.body.motion import standing_pose
+    from monoavatar.render import sample_sh_lighting
+
+    rng = np.random.default_rng([seed, 5])
+    spec = sample_subject(rng, body)
+    subject = build_subject(body, spec, settings.texture_size)
+    pose = standing_pose(body, rng)
+    yaw = float(np.deg2rad(rng.uniform(-settings.yaw_deg, settings.yaw_deg)))
+    pose[0] = [0.0, yaw, 0.0]  # upright, facing the camera (+Z) turned by yaw
+    pose[0] += 0.03 * rng.standard_normal(3)
+    size = settings.image_size
+    distance = float(rng.uniform(*settings.distance_m))
+    eye = np.array([rng.uniform(-0.1, 0.1), rng.uniform(0.0, 0.25), distance])
+    camera = PinholeCamera.look_at(eye, np.array([0.0, -0.05, 0.0]), np.array([0.0, 1.0, 0.0]),
+                                   settings.focal_ratio * size, size, size)  # fmt: skip
+    sh = sample_sh_lighting(rng, 1).sh[0]
+    background = make_background(str(rng.choice(BACKGROUNDS)), rng, size, size)
+    r = render_frame(body, subject, pose, np.zeros(3), camera, sh, background)
+    noise = NOISE_LEVELS[str(rng.choice(list(settings.noise)))]
+    image = degrade(r["image"], noise, rng)
+    return PhotoScene(image=image, mask=r["mask"], camera=camera, subject=subject, pose=pose,
+                      translation=np.zeros(3), keypoints=r["keypoints"], yaw=yaw,
+                      distance=distance, posed=r["posed"])  # fmt: skip
+
+
+def partial_texture(vertices: np.ndarray, body: BodyModel, image: np.ndarray, mask: np.ndarray,
+                    camera: PinholeCamera, size: int) -> tuple[np.ndarray, np.ndarray]:
+    """The photo projected into the UV atlas through the posed body (Sec. E.5.3).
+
+    Args:
+        vertices: (V, 3) the body posed as fitted, world metres.
+        image: (H, W, 3) uint8 photo; mask: (H, W) bool person mask.
+        size: S, texels per side.
+    Returns:
+        (S, S, 3) float32 observed (shaded) colour in [0, 1], 0 where unseen, and (S, S) bool
+        visibility: texels whose surface point faces the camera, is not hidden by another part
+        of the body (depth test against the rasterised body) and lands inside the mask.
+    """
+    settings = TextureSettings(size=size, sample_size=size, top_k=1, fill=False, dilation=0,
+                               register_rounds=0, workers=1)  # fmt: skip
+    tex = build_texture(vertices[None], body.faces, body.uv, body.face_uv, image[None],
+                        mask[None], camera, settings=settings)  # fmt: skip
+    return tex.as_float() * tex.coverage[..., None], tex.coverage.copy()
+
+
+def template_positions(body: BodyModel, layout: UVLayout) -> np.ndarray:
+    """(S, S, 3) float32 canonical position of every chart texel on the average body, metres
+    (0 outside the charts): where on the body each texel is."""
+    with torch.no_grad():
+        rest, _ = body.rest_shape(body.default_shape(1))
+        fine = layout.subdivision.apply(rest.double())[0].numpy()
+    return rasterise_vertex_values(layout, fine)
+
+
+def network_input(colour: np.ndarray, visible: np.ndarray, template: np.ndarray) -> np.ndarray:
+    """(7, S, S) float32: partial texture colour (S, S, 3) in [0, 1] mapped to [−1, 1] and
+    zeroed where unseen, visibility (S, S), template positions (S, S, 3) metres."""
+    rgb = (2.0 * colour - 1.0) * visible[..., None]
+    stacked = np.concatenate([rgb, visible[..., None].astype(np.float32), template], axis=2)
+    return np.ascontiguousarray(stacked.transpose(2, 0, 1), dtype=np.float32)
+
+
+@dataclass
+class PhotoSample:
+    """One training example and what it was made from (see the module docstring)."""
+
+    input: np.ndarray  # (7, S, S) float32
+    target: np.ndarray  # (6, S, S) float32
+    weight: np.ndarray  # (1, S, S) float32
+    seed: int
+    yaw: float  # radians
+    fill: float  # person height / image height
+    garment_visible: float  # fraction of the chart texels seen
+
+
+def base_fine_vertices(fit_body: BodyModel, layout: UVLayout, phenotypes: np.ndarray | Tensor
+                       ) -> Tensor:  # fmt: skip
+    """(V_f, 3) fine canonical vertices of the six-phenotype body, metres (midpoint
+    subdivision)."""
+    s = torch.as_tensor(np.asarray(phenotypes), dtype=fit_body.dtype).reshape(1, -1)
+    with torch.no_grad():
+        rest, _ = fit_body.rest_shape(s)
+        return layout.subdivision.apply(rest)[0].double()
+
+
+def placed_body(fit_body: BodyModel, scene: PhotoScene, pose: np.ndarray,
+                true_shape: np.ndarray, shape: np.ndarray, root_offset: np.ndarray
+                ) -> np.ndarray:  # fmt: skip
+    """(V, 3) world vertices of the six-phenotype body with ``shape`` and ``pose``, its root
+    where the true root is, moved by ``root_offset`` (camera axes, metres), and the whole
+    placement scaled about the camera centre by the ratio of the body's height to the true
+    one: the image of a bigger body farther away, as an up-to-scale fit finds it."""
+    cam = scene.camera
+    dtype = fit_body.dtype
+    with torch.no_grad():
+        _, j_true = fit_body.rest_shape(torch.as_tensor(true_shape, dtype=dtype)[None])
+        rest, j_fit = fit_body.rest_shape(torch.as_tensor(shape, dtype=dtype)[None])
+        rest_t, _ = fit_body.rest_shape(torch.as_tensor(true_shape, dtype=dtype)[None])
+    ratio = float(np.ptp(rest[0, :, 1].double().numpy()) / np.ptp(rest_t[0, :, 1].double().numpy()))
+    root_true = j_true[0, 0].double().numpy() + scene.translation
+    root_cam = (cam.R @ root_true + cam.t + root_offset) * ratio
+    root_world = cam.R.T @ (root_cam - cam.t)
+    translation = root_world - j_fit[0, 0].double().numpy()
+    with torch.no_grad():
+        out = fit_body(shape=torch.as_tensor(shape, dtype=dtype)[None],
+                       pose=torch.as_tensor(pose, dtype=dtype)[None],
+                       translation=torch.as_tensor(translation, dtype=dtype)[None])
+    return np.asarray(out.vertices[0].double().numpy())
+
+
+def photo_sample(local_body: BodyModel, fit_body: BodyModel, layout: UVLayout,
+                 template: np.ndarray, seed: int, settings: PhotoDataSettings,
+                 fit_error: FitError) -> PhotoSample:  # fmt: skip
+    """The sample of seed ``seed``: its photo (:func:`render_photo`), the partial texture from
+    the six-phenotype body posed as perturbed by ``fit_error``, and the exact maps."""
+    scene = render_photo(local_body, seed, settings)
+    rng = np.random.default_rng([seed, 6])
+    true_shape = np.asarray(scene.subject.spec.shape[:PHENOTYPES], np.float64)
+    pose, shape, root_offset = fit_error.perturb(rng, scene.pose, true_shape)
+    vertices = placed_body(fit_body, scene, pose, true_shape, shape, root_offset)
+    colour, visible = partial_texture(vertices, fit_body, scene.image,
+                                      scene.mask, scene.camera, layout.size)  # fmt: skip
+    base = base_fine_vertices(fit_body, layout, true_shape)
+    target = displacement_targets(layout, base, scene.subject.rest_vertices.double())
+    rows = np.flatnonzero(scene.mask.any(axis=1))
+    fill = float(np.ptp(rows) + 1) / scene.mask.shape[0] if len(rows) else 0.0
+    chart = layout.chart
+    return PhotoSample(
+        input=network_input(colour, visible, template),
+        target=np.ascontiguousarray(target.transpose(2, 0, 1)),
+        weight=chart[None].astype(np.float32),
+        seed=seed, yaw=scene.yaw, fill=fill,
+        garment_visible=float(visible[chart].mean()),
+    )  # fmt: skip
+
+
+# -- a data folder: shards of samples -----------------------------------------------------------
+
+FORMAT = "monoavatar-photo-data-1"
+
+
+def write_shard(path: Path, samples: list[PhotoSample]) -> None:
+    """Samples as one npz (input float16, target float16, weight uint8)."""
+    from monoavatar.core.files import atomic_path
+
+    arrays = {
+        "format": np.array(FORMAT),
+        "input": np.stack([s.input for s in samples]).astype(np.float16),
+        "target": np.stack([s.target for s in samples]).astype(np.float16),
+        "weight": np.stack([s.weight for s in samples]).astype(np.uint8),
+        "seed": np.array([s.seed for s in samples]),
+        "yaw": np.array([s.yaw for s in samples]),
+        "fill": np.array([s.fill for s in samples]),
+        "visible": np.array([s.garment_visible for s in samples]),
+    }
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        np.savez(fh, **arrays)
+
+
+class PhotoDataset(torch.utils.data.Dataset[dict[str, Tensor]]):
+    """The samples of the shards ``paths`` in memory, as dicts of float32 tensors ``input``
+    (7, S, S), ``target`` (6, S, S) and ``weight`` (1, S, S)."""
+
+    def __init__(self, paths: list[Path]) -> None:
+        inputs, targets, weights, meta = [], [], [], []
+        for path in paths:
+            try:
+                with np.load(path, allow_pickle=False) as d:
+                    if str(d["format"]) != FORMAT:
+                        raise PhotoDataError(f"{path}: format {str(d['format'])!r}")
+                    inputs.append(d["input"])
+                    targets.append(d["target"])
+                    weights.append(d["weight"])
+                    meta.append(np.stack([d["seed"], d["yaw"], d["fill"], d["visible"]], 1))
+            except (OSError, KeyError, ValueError) as exc:
+                raise PhotoDataError(f"cannot read the data shard {path}: {exc}") from exc
+        if not inputs:
+            raise PhotoDataError("no data shards")
+        self.inputs = np.concatenate(inputs)
+        self.targets = np.concatenate(targets)
+        self.weights = np.concatenate(weights)
+        self.meta = np.concatenate(meta)
+
+    def __len__(self) -> int:
+        return len(self.inputs)
+
+    def mean_target(self) -> Tensor:
+        """(6, S, S) float32: the mean target over the samples, on the weighted texels."""
+        total = np.zeros(self.targets.shape[1:], np.float64)
+        count = np.zeros(self.weights.shape[1:], np.float64)
+        for k in range(0, len(self), 64):
+            w = self.weights[k : k + 64].astype(np.float64)
+            total += (self.targets[k : k + 64].astype(np.float64) * w).sum(0)
+            count += w.sum(0)
+        return torch.from_numpy((total / np.maximum(count, 1.0)).astype(np.float32))
+
+    def __getitem__(self, i: int) -> dict[str, Tensor]:
+        return {"input": torch.from_numpy(self.inputs[i].astype(np.float32)),
+                "target": torch.from_numpy(self.targets[i].astype(np.float32)),
+                "weight": torch.from_numpy(self.weights[i].astype(np.float32))}  # fmt: skip
+
+
+def shard_paths(folder: Path, split: str) -> list[Path]:
+    return sorted(folder.glob(f"{split}-*.npz"))
+
+
+def iter_seeds(split: str, count: int) -> Iterator[int]:
+    """Disjoint seed ranges: train from 0, validation from 10⁶, test from 2·10⁶."""
+    base = {"train": 0, "val": 1_000_000, "test": 2_000_000}[split]
+    return iter(range(base, base + count))
+
+
+def save_settings(path: Path, settings: PhotoDataSettings, fit_error: FitError) -> None:
+    """``data.json``: the format, the data settings and the fit error sampled from."""
+    from monoavatar.core.files import atomic_write_text
+
+    atomic_write_text(path, json.dumps({"format": FORMAT, "settings": asdict(settings),
+                                        "fit_error": fit_error.to_json()}, indent=1))
+
+
+def _write_shard_of(folder: str, split: str, index: int, seeds: list[int],
+                    settings: PhotoDataSettings, fit_error: FitError) -> str:  # fmt: skip
+    """Make and write one shard (run in a worker process: it loads its own body models)."""
+    from monoavatar.body import load_body_model
+    from monoavatar.core.threads import torch_threads
+    from monoavatar.learn.uvmaps import uv_layout
+
+    with torch_threads(1):
+        local_body, fit_body = load_body_model("anny-local"), load_body_model("anny")
+        layout = uv_layout(fit_body, settings.map_size)
+        template = template_positions(fit_body, layout)
+        samples = [photo_sample(local_body, fit_body, layout, template, seed, settings,
+                                fit_error) for seed in seeds]  # fmt: skip
+    path = Path(folder) / f"{split}-{index:04d}.npz"
+    write_shard(path, samples)
+    return str(path)
+
+
+SHARD = 25
+"""Samples per shard file."""
+
+
+def generate_photo_data(folder: str | Path, counts: dict[str, int], settings: PhotoDataSettings,
+                        fit_error: FitError, workers: int = 2, progress: bool = True
+                        ) -> dict[str, list[Path]]:  # fmt: skip
+    """Write ``counts[split]`` samples of each split ("train", "val", "test") as shards
+    ``SPLIT-NNNN.npz`` into ``folder``, with ``data.json`` (settings and fit error). Shards
+    already there (from an interrupted run) are kept, so generation resumes; each shard is
+    written atomically. Returns the shard paths per split."""
+    from concurrent.futures import ProcessPoolExecutor
+    from multiprocessing import get_context
+
+    from tqdm import tqdm
+
+    settings.validate()
+    out = Path(folder)
+    out.mkdir(parents=True, exist_ok=True)
+    meta = out / "data.json"
+    record = {"format": FORMAT, "settings": json.loads(json.dumps(asdict(settings))),
+              "fit_error": fit_error.to_json()}  # fmt: skip
+    if meta.is_file():
+        old = json.loads(meta.read_text())
+        if old.get("settings") != record["settings"] or old.get("fit_error") != record[
+                "fit_error"]:  # fmt: skip
+            raise PhotoDataError(f"{out} holds data made with other settings; use another "
+                                 "folder or delete it")  # fmt: skip
+    else:
+        save_settings(meta, settings, fit_error)
+    jobs = []
+    for split, count in counts.items():
+        seeds = list(iter_seeds(split, count))
+        for k in range(0, count, SHARD):
+            if not (out / f"{split}-{k // SHARD:04d}.npz").is_file():
+                jobs.append((split, k // SHARD, seeds[k : k + SHARD]))
+    total = sum(len(j[2]) for j in jobs)
+    bar = tqdm(total=total, desc="photo data", unit="sample", disable=not progress)
+    if jobs:
+        with ProcessPoolExecutor(max(1, workers), mp_context=get_context("spawn")) as pool:
+            futures = [pool.submit(_write_shard_of, str(out), split, index, seeds, settings,
+                                   fit_error) for split, index, seeds in jobs]  # fmt: skip
+            for future, job in zip(futures, jobs, strict=True):
+                future.result()
+                bar.update(len(job[2]))
+    bar.close()
+    return {split: shard_paths(out, split) for split in counts}

@@ -1,0 +1,125 @@
+"""The photo network (Paper E, Tex2Shape) as shipped: a U-Net from the partial texture to the
+UV displacement and normal maps, its weights in ``weights/photo.safetensors`` (no pickle, no
+network), and inference on one photo's partial texture."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from monoavatar.body import BodyModel
+from monoavatar.core.errors import MonoavatarError
+from monoavatar.learn.networks import ResidualOverMean, UNet
+from monoavatar.learn.photo_data import (
+    INPUT_CHANNELS,
+    TARGET_CHANNELS,
+    network_input,
+    template_positions,
+)
+from monoavatar.learn.training import load_generator
+from monoavatar.learn.uvmaps import UVLayout, uv_layout
+
+__all__ = ["PhotoNetwork", "PhotoNetworkSettings", "default_weights", "load_photo_network"]
+
+
+class PhotoModelError(MonoavatarError, ValueError):
+    """No usable photo network weights."""
+
+
+@dataclass(frozen=True)
+class PhotoNetworkSettings:
+    """The generator's architecture (stored in the weights' metadata and checked on load).
+
+    Attributes:
+        base: channels of the first encoder level.
+        depth: encoder levels (the map side must be divisible by 2**depth).
+        max_channels: channel cap of the deepest levels.
+        map_size: S, side of the UV maps, texels.
+        residual_scale: the U-Net predicts the maps' deviation from the training set's mean
+            maps, times this (:class:`~monoavatar.learn.networks.ResidualOverMean`).
+    """
+
+    base: int = 32
+    depth: int = 6
+    max_channels: int = 256
+    map_size: int = 256
+    residual_scale: float = 0.1
+
+    def build(self, mean: torch.Tensor | None = None) -> nn.Module:
+        """The generator; ``mean`` (6, S, S) the prior maps (zeros until loaded)."""
+        net = UNet(INPUT_CHANNELS, TARGET_CHANNELS, base=self.base, depth=self.depth,
+                   max_channels=self.max_channels)  # fmt: skip
+        if mean is None:
+            mean = torch.zeros(TARGET_CHANNELS, self.map_size, self.map_size)
+        return ResidualOverMean(net, mean, self.residual_scale)
+
+    def metadata(self) -> dict[str, str]:
+        return {"architecture": json.dumps({"base": self.base, "depth": self.depth,
+                                            "max_channels": self.max_channels,
+                                            "map_size": self.map_size,
+                                            "residual_scale": self.residual_scale})}  # fmt: skip
+
+    @staticmethod
+    def from_metadata(meta: dict[str, str]) -> PhotoNetworkSettings:
+        try:
+            a = json.loads(meta["architecture"])
+            return PhotoNetworkSettings(int(a["base"]), int(a["depth"]), int(a["max_channels"]),
+                                        int(a["map_size"]), float(a["residual_scale"]))  # fmt: skip
+        except (KeyError, TypeError, ValueError) as exc:
+            raise PhotoModelError(f"the weights name no photo-network architecture ({exc})"
+                                  ) from exc  # fmt: skip
+
+
+def default_weights() -> Path:
+    """The shipped weights, inside the installed package."""
+    return Path(str(resources.files("monoavatar.learn") / "weights" / "photo.safetensors"))
+
+
+@dataclass
+class PhotoNetwork:
+    """A loaded photo network with the UV layout and template its inputs need."""
+
+    generator: nn.Module
+    settings: PhotoNetworkSettings
+    layout: UVLayout
+    template: np.ndarray  # (S, S, 3) metres
+    metadata: dict[str, str]
+    path: Path
+
+    def predict(self, colour: np.ndarray, visible: np.ndarray) -> np.ndarray:
+        """(S, S, 6) float32 maps (displacement / DISPLACEMENT_SCALE, normals; canonical frame)
+        from a partial texture (S, S, 3) in [0, 1] and its visibility (S, S) bool."""
+        x = torch.from_numpy(network_input(colour, visible, self.template))[None]
+        with torch.no_grad():
+            y = self.generator(x.to(next(self.generator.parameters()).device))
+        maps = y[0].float().cpu().numpy().transpose(1, 2, 0)
+        maps[~self.layout.chart] = 0.0
+        return np.ascontiguousarray(maps)
+
+
+def load_photo_network(body: BodyModel, path: str | Path | None = None,
+                       device: str = "cpu") -> PhotoNetwork:  # fmt: skip
+    """Load the photo network's weights (default: the shipped ones) for ``body``'s UV layout.
+
+    Raises:
+        PhotoModelError: no weights file, or weights of another architecture.
+    """
+    p = Path(path) if path is not None else default_weights()
+    if not p.is_file():
+        raise PhotoModelError(f"no photo-network weights at {p}; train them with "
+                              "'monoavatar train photo -o DIR' or pass --weights")  # fmt: skip
+    from monoavatar.learn.weights import load_weights
+
+    _, meta = load_weights(p)
+    settings = PhotoNetworkSettings.from_metadata(meta)
+    generator = settings.build()
+    load_generator(generator, p)
+    generator.eval().to(device)
+    layout = uv_layout(body, settings.map_size)
+    return PhotoNetwork(generator, settings, layout, template_positions(body, layout), meta, p)

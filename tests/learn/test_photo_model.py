@@ -1,0 +1,61 @@
+"""The photo network as shipped: architecture in the weights' metadata, the residual over the
+mean maps, loading (and refusing) weights, inference shapes."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from monoavatar.learn.networks import ResidualOverMean
+from monoavatar.learn.photo_model import (
+    PhotoModelError,
+    PhotoNetworkSettings,
+    default_weights,
+    load_photo_network,
+)
+from monoavatar.learn.training import export_generator
+
+SMALL = PhotoNetworkSettings(base=4, depth=5, max_channels=8, map_size=64, residual_scale=0.1)
+
+
+def test_residual_starts_at_the_mean_and_saves_it() -> None:
+    torch.manual_seed(0)
+    mean = torch.randn(6, 64, 64)
+    net = SMALL.build(mean)
+    assert isinstance(net, ResidualOverMean)
+    for p in net.net.parameters():
+        torch.nn.init.zeros_(p)
+    x = torch.randn(2, 7, 64, 64)
+    assert torch.equal(net(x), mean.expand(2, -1, -1, -1))
+    assert torch.equal(net.state_dict()["mean"], mean)
+
+
+def test_metadata_round_trip() -> None:
+    assert PhotoNetworkSettings.from_metadata(SMALL.metadata()) == SMALL
+    with pytest.raises(PhotoModelError, match="architecture"):
+        PhotoNetworkSettings.from_metadata({"format": "x"})
+
+
+def test_load_predict_and_refuse(anny32, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    torch.manual_seed(1)
+    mean = torch.randn(6, 64, 64)
+    path = tmp_path / "small.safetensors"
+    export_generator(SMALL.build(mean), path, SMALL.metadata())
+    network = load_photo_network(anny32, path)
+    assert torch.equal(network.generator.state_dict()["mean"], mean)  # the prior came back
+    maps = network.predict(np.zeros((64, 64, 3), np.float32), np.zeros((64, 64), bool))
+    assert maps.shape == (64, 64, 6)
+    assert np.all(maps[~network.layout.chart] == 0)
+    with pytest.raises(PhotoModelError, match="no photo-network weights"):
+        load_photo_network(anny32, tmp_path / "missing.safetensors")
+
+
+def test_shipped_weights_load(anny32) -> None:  # type: ignore[no-untyped-def]
+    """The repository ships weights that load into the architecture they name."""
+    assert default_weights().is_file()
+    network = load_photo_network(anny32)
+    assert network.settings.map_size == 256
+    assert "trained" in network.metadata
