@@ -137,7 +137,7 @@ def _plots(out: Path, rows: list[dict[str, Any]]) -> None:
         line_plot(out / name, {"body alone": (x, [r["body_mm"] for r in order]),
                                "body + maps": (x, [r["maps_mm"] for r in order])},
                   label, "surface error (mm, pose + scale aligned)",
-                  "photo: error per test photo")  # fmt: skip
+                  "photo: error per test photo", connect=False)  # fmt: skip
 
 
 def _mean(rows: list[dict[str, Any]], key: str) -> float:

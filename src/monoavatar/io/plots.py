@@ -14,9 +14,11 @@ __all__ = ["line_plot"]
 
 
 def line_plot(path: str | Path, series: dict[str, tuple[Sequence[float], Sequence[float]]],
-              xlabel: str, ylabel: str, title: str = "", logy: bool = False) -> Path:
-    """Write one chart with a line (with markers) per ``series`` label → (x, y) to ``path``
-    (PNG, about 640 x 400 pixels), atomically. Returns the path."""
+              xlabel: str, ylabel: str, title: str = "", logy: bool = False,
+              connect: bool = True) -> Path:
+    """Write one chart with a line (with markers; markers alone when not ``connect``) per
+    ``series`` label → (x, y) to ``path`` (PNG, about 640 x 400 pixels), atomically. Returns
+    the path."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -25,7 +27,8 @@ def line_plot(path: str | Path, series: dict[str, tuple[Sequence[float], Sequenc
     fig, ax = plt.subplots(figsize=(6.4, 4.0), dpi=100)
     try:
         for label, (x, y) in series.items():
-            ax.plot(np.asarray(x, float), np.asarray(y, float), marker="o", markersize=3,
+            ax.plot(np.asarray(x, float), np.asarray(y, float), marker="o",
+                    markersize=3 if connect else 6, linestyle="-" if connect else "none",
                     label=label)  # fmt: skip
         ax.set_xlabel(xlabel)
         ax.set_ylabel(ylabel)
