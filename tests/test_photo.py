@@ -183,3 +183,12 @@ def test_a_real_upper_body_photo_runs_with_a_warning(weights: Path, tmp_path: Pa
     result = photo(path, tmp_path / "out", _config(weights))
     assert (result.folder / "avatar.glb").is_file()
     assert any("legs are not all visible" in w for w in result.report.warnings)
+
+
+def test_reconstruct_points_a_single_photo_to_the_photo_command(
+        photo_folder: Path, tmp_path: Path,
+        capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    out = tmp_path / "rec"
+    assert main(["reconstruct", str(photo_folder / "photo.png"), "-o", str(out), "--quiet"]) == 2
+    assert "monoavatar photo" in capsys.readouterr().err
+    assert not out.exists()

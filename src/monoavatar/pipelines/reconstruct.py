@@ -257,6 +257,10 @@ def _reconstruct(input_path: str | Path, out: Path, config: ReconstructConfig
         warnings.simplefilter("always")
         with timer("perception"):
             inputs = load_inputs(input_path, config.input)
+        if inputs.kind == "image":
+            raise PipelineError(f"{input_path} is a single image; reconstruct needs a video (or "
+                                "frames) of a person turning around. For one photo use "
+                                f"'monoavatar photo {input_path} -o OUT'")  # fmt: skip
         body = load_body_model(config.body_model)
         track, shape, texture, sh = fit_avatar(body, inputs, config, timer)
     caught = []
