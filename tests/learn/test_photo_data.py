@@ -148,7 +148,7 @@ def test_sample_targets_and_weights(anny_local, anny32, layout) -> None:  # type
     assert sample.target.shape == (TARGET_CHANNELS, 128, 128)
     assert np.array_equal(sample.weight[0] > 0, layout.chart)
     visible = sample.input[3] > 0.5
-    assert not visible[~layout.chart].any() and 0.1 < sample.garment_visible < 0.7
+    assert not visible[~layout.chart].any() and 0.1 < sample.visible_fraction < 0.7
     # clothing and hair lie outside the body: the displacement along the normal is mostly >= 0
     disp, normals = sample.target[:3], sample.target[3:]
     along = (disp * normals).sum(0)[layout.chart]

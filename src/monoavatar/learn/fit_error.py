@@ -77,8 +77,7 @@ def residuals(fit_body: BodyModel, seeds: list[int], local_body: BodyModel,
 def measure_fit_error(fit_body: BodyModel, local_body: BodyModel, seeds: list[int],
                       settings: PhotoDataSettings, progress: bool = True) -> FitError:
     """The fitter's error on the photos of ``seeds`` as independent Gaussians: the root mean
-    square of each residual component (a zero-mean fit; the depth of an up-to-scale fit is
-    dominated by the unknown height, so it is kept as measured)."""
+    square of each residual component (a zero-mean fit)."""
     r = residuals(fit_body, seeds, local_body, settings, progress)
     rms = lambda a: np.sqrt(np.mean(a**2, axis=0))  # noqa: E731
     return FitError(rms(r.rotation), rms(r.translation), rms(r.shape), len(r.rotation))

@@ -157,7 +157,7 @@ class UNet(nn.Module):
                 f"multiples of {multiple}, got {height}×{width}"
             )
         skips: list[Tensor] = []
-        if x.device.type == "cpu":  # oneDNN's convolutions are about 1.7x faster in NHWC
+        if x.device.type == "cpu":  # oneDNN's faster layout for these convolutions
             x = x.contiguous(memory_format=torch.channels_last)
         h = x
         for layer in self.down:
@@ -246,8 +246,7 @@ class PatchDiscriminator(nn.Module):
 class ResidualOverMean(nn.Module):
     """``y = mean + scale · net(x)``: a generator that predicts the deviation of each sample from
     the training set's mean target (a per-pixel prior, the buffer ``mean`` (C_out, H, W),
-    saved with the weights). It starts at the mean instead of at zero, which a U-Net fed
-    mostly unseen texels otherwise takes many steps to learn.
+    saved with the weights); at initialisation it answers about the mean.
 
     Args:
         net: (B, C_in, H, W) → (B, C_out, H, W).

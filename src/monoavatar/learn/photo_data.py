@@ -252,7 +252,7 @@ class PhotoSample:
     seed: int
     yaw: float  # radians
     fill: float  # person height / image height
-    garment_visible: float  # fraction of the chart texels seen
+    visible_fraction: float  # fraction of the chart texels seen
 
 
 def base_fine_vertices(fit_body: BodyModel, layout: UVLayout, phenotypes: np.ndarray | Tensor
@@ -312,7 +312,7 @@ def photo_sample(local_body: BodyModel, fit_body: BodyModel, layout: UVLayout,
         target=np.ascontiguousarray(target.transpose(2, 0, 1)),
         weight=chart[None].astype(np.float32),
         seed=seed, yaw=scene.yaw, fill=fill,
-        garment_visible=float(visible[chart].mean()),
+        visible_fraction=float(visible[chart].mean()),
     )  # fmt: skip
 
 
@@ -333,7 +333,7 @@ def write_shard(path: Path, samples: list[PhotoSample]) -> None:
         "seed": np.array([s.seed for s in samples]),
         "yaw": np.array([s.yaw for s in samples]),
         "fill": np.array([s.fill for s in samples]),
-        "visible": np.array([s.garment_visible for s in samples]),
+        "visible": np.array([s.visible_fraction for s in samples]),
     }
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
         np.savez(fh, **arrays)
