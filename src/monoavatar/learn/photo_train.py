@@ -20,8 +20,6 @@ import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
-import numpy as np
-
 from monoavatar.core.errors import MonoavatarError
 from monoavatar.core.files import atomic_write_text
 from monoavatar.learn.photo_data import (
@@ -29,7 +27,6 @@ from monoavatar.learn.photo_data import (
     PhotoDataset,
     PhotoDataSettings,
     generate_photo_data,
-    iter_seeds,
 )
 from monoavatar.learn.photo_model import PhotoNetworkSettings
 from monoavatar.learn.training import TrainResult, TrainSettings, export_generator, train
@@ -174,8 +171,3 @@ def _curve(log: Path, path: Path) -> None:
     minutes = [r["seconds"] / 60.0 for r in rows]
     line_plot(path, {"validation L1 (maps)": (minutes, [r["val_l1"] for r in rows])},
               "training time (minutes)", "masked L1 of the maps", "photo network")
-
-
-def seeds_of(split: str, count: int) -> np.ndarray:
-    """The seeds of a split (for the benchmark's sealed test photos)."""
-    return np.fromiter(iter_seeds(split, count), dtype=np.int64)

@@ -32,7 +32,7 @@ import torch
 from monoavatar.body import BodyModel, load_body_model
 from monoavatar.fit.pose import PoseSettings, PoseTrack, fit_photo, world_up
 from monoavatar.io.avatar_folder import Report
-from monoavatar.learn.photo_data import partial_texture
+from monoavatar.learn.photo_data import base_fine_vertices, partial_texture
 from monoavatar.learn.photo_model import PhotoNetwork, load_photo_network
 from monoavatar.learn.uvmaps import DISPLACEMENT_SCALE, UVLayout, sample_vertex_values
 from monoavatar.pipelines.stages import (
@@ -186,9 +186,7 @@ def surface(body: BodyModel, network: PhotoNetwork, shape: np.ndarray, maps: np.
     (V, 3), metres."""
     layout: UVLayout = network.layout
     disp = maps[..., :3] * DISPLACEMENT_SCALE
-    with torch.no_grad():
-        rest, _ = body.rest_shape(torch.as_tensor(shape, dtype=body.dtype)[None])
-        base = layout.subdivision.apply(rest.double())[0].numpy()
+    base = base_fine_vertices(body, layout, shape).numpy()
     fine = base + sample_vertex_values(layout, disp)
     return fine, fine[: body.num_vertices] - base[: body.num_vertices]
 
