@@ -241,3 +241,16 @@ def test_no_grabcut_reaches_perception(tiny_scene: Path, tmp_path: Path,
     assert "stopped by the test" in capsys.readouterr().err
     assert [s.grabcut for s in seen] == [False, True]
     assert seen[1] == perception.PerceptionSettings()
+
+
+def test_texture_option_reaches_the_config(tmp_path: Path) -> None:
+    from monoavatar.cli import _config, build_parser
+
+    parser = build_parser(only="reconstruct")
+    args = parser.parse_args(["reconstruct", "video.mp4", "-o", str(tmp_path / "o"),
+                              "--texture", "graphcut"])  # fmt: skip
+    assert _config(args).texture.method == "graphcut"
+    args = parser.parse_args(["reconstruct", "video.mp4", "-o", str(tmp_path / "o")])
+    assert _config(args).texture.method == "median"
+    with pytest.raises(SystemExit):
+        parser.parse_args(["reconstruct", "video.mp4", "-o", "o", "--texture", "mean"])

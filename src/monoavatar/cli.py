@@ -203,7 +203,8 @@ def _config(args: argparse.Namespace, **options: Any) -> ReconstructConfig:
             pose=replace(base.pose, height=args.height),
             shape=replace(base.shape, fit_offsets=not getattr(args, "no_offsets", False)),
             texture=replace(base.texture, size=getattr(args, "texture_size", base.texture.size),
-                            workers=workers),
+                            workers=workers,
+                            method=getattr(args, "texture_method", base.texture.method)),
             flow=replace(base.flow, workers=workers),
         )  # fmt: skip
     except ValueError as exc:  # a settings dataclass refused a value
@@ -213,7 +214,7 @@ def _config(args: argparse.Namespace, **options: Any) -> ReconstructConfig:
 def _add_reconstruct(p: argparse.ArgumentParser) -> None:
     from monoavatar.pipelines.reconstruct import ReconstructConfig
     from monoavatar.pipelines.stages import POSES
-    from monoavatar.texture.backproject import TextureSettings
+    from monoavatar.texture.backproject import METHODS, TextureSettings
 
     p.description = (
         "Reconstruct a textured, rigged avatar from a video of a person turning around in front "
@@ -226,6 +227,11 @@ def _add_reconstruct(p: argparse.ArgumentParser) -> None:
     _add_input_options(p)
     _option(p, "--texture-size", TextureSettings, "size", "texture side in texels", type=int,
             metavar="S")  # fmt: skip
+    p.add_argument("--texture", dest="texture_method", choices=METHODS,
+                   default=_default(TextureSettings, "method"),
+                   help="how the key-frames' colours are merged: the median of the most "
+                   "orthogonal views, or one view per texel chosen by semantic graph cuts "
+                   "(Paper C) (default: %(default)s)")  # fmt: skip
     _option(p, "--device", ReconstructConfig, "device", "where to compute (every stage runs on "
             "the CPU)", choices=("cpu", "cuda"))  # fmt: skip
     p.add_argument("--poses", dest="pose_source", choices=POSES, default=POSES[0],

@@ -1,5 +1,6 @@
-"""Texture stage (Sec. B.3.4): back-projection of key frames onto the UV layout, the median of
-the most orthogonal views, seam-aware hole filling, and SH lighting estimation for albedo."""
+"""Texture stage (Sec. B.3.4, C.3.4): back-projection of key frames onto the UV layout, merged
+by the median of the most orthogonal views or by semantic graph cuts, seam-aware hole filling,
+and SH lighting estimation for albedo."""
 
 from monoavatar.texture.atlas import (
     TexelAtlas,
@@ -15,9 +16,11 @@ from monoavatar.texture.backproject import (
     sampling_size,
 )
 from monoavatar.texture.fill import dilate_texture, harmonic_fill
+from monoavatar.texture.graphcut import GraphCutSettings, merge_views
 from monoavatar.texture.lighting import estimate_sh, fit_sh
 
 __all__ = [
+    "GraphCutSettings",
     "TexelAtlas",
     "TextureError",
     "TextureSettings",
@@ -28,6 +31,7 @@ __all__ = [
     "estimate_sh",
     "fit_sh",
     "harmonic_fill",
+    "merge_views",
     "sampling_size",
     "seam_edges",
     "texel_graph",

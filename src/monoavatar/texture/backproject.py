@@ -13,7 +13,9 @@ the median of the most orthogonal texels from all views." Here per texel rather 
    (smooth) normal and the direction to the camera; optionally the colour is divided by the
    SH shading of that normal (the texture is then albedo);
 4. per texel the ``top_k`` views with the largest cosine are kept and the texel is set to their
-   per-channel median (robust to a view that is occluded or misregistered);
+   per-channel median (robust to a view that is occluded or misregistered); or, with
+   ``method="graphcut"``, each texel takes one view's colour, chosen by semantic graph cuts
+   (:mod:`monoavatar.texture.graphcut`);
 5. texels never seen are filled harmonically over the surface (across UV seams,
    :mod:`monoavatar.texture.fill`), and the charts are dilated so mipmaps do not bleed;
 6. registration (``register_rounds``): a key-frame pose a few degrees off puts a colour edge a
@@ -30,7 +32,7 @@ Conventions: OpenCV cameras (:class:`monoavatar.core.camera.PinholeCamera`), pix
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import partial
 
 import numpy as np
@@ -57,8 +59,12 @@ from monoavatar.texture.atlas import (
     texel_graph,
 )
 from monoavatar.texture.fill import dilate_texture, harmonic_fill
+from monoavatar.texture.graphcut import GraphCutSettings, merge_views
 
 __all__ = ["TextureSettings", "UVTexture", "build_texture", "sampling_size"]
+
+
+METHODS = ("median", "graphcut")
 
 
 @dataclass(frozen=True)
@@ -99,6 +105,11 @@ class TextureSettings:
             sampling; the samples are added to the median in frame order, so the texture
             depends on the count only through rounding, see
             :func:`monoavatar.core.threads.frame_pool`).
+        method: how the views are merged in the last round: ``"median"`` (step 4) or
+            ``"graphcut"``, one view per texel with seams on semantic boundaries
+            (:mod:`monoavatar.texture.graphcut`, Sec. C.3.4); registration rounds use the
+            median either way.
+        graphcut: options of the graph-cut merge.
     """
 
     size: int = 1024
@@ -117,8 +128,12 @@ class TextureSettings:
     max_flow: float = 8.0
     workers: int = 2
     mirror_radius: float = 0.01
+    method: str = "median"
+    graphcut: GraphCutSettings = field(default_factory=GraphCutSettings)
 
     def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise TextureError(f"method must be one of {', '.join(METHODS)}, got {self.method!r}")
         if self.size < 2:
             raise TextureError(f"size must be at least 2, got {self.size}")
         if self.sample_size is not None and self.sample_size < 2:
@@ -503,8 +518,9 @@ def build_texture(
     graph = None
     image = np.zeros((work, work, 3), np.float32)  # the texture so far; round 0 fills it
 
-    def frame_views(i: int, so_far: Tensor | None) -> _Views:
-        """Frame i's samples; registered by the flow from ``so_far`` rendered (step 6)."""
+    def frame_views(i: int, so_far: Tensor | None) -> tuple[_Views, float]:
+        """Frame i's samples, registered by the flow from ``so_far`` rendered (step 6), and
+        the frame's silhouette error ``1 − IoU`` (rendered mesh vs person mask)."""
         sh_i = None if lighting is None else lighting[i]
         frags = rasterize(verts[i], f, cams[i])
         flow = None
@@ -512,21 +528,39 @@ def build_texture(
             render = render_over_image(verts[i], f, frags, t, fu, so_far, imgs[i], sh=sh_i)
             flow = DISFlow("medium").estimate(render, imgs[i])
             flow[np.linalg.norm(flow, axis=2) > settings.max_flow] = 0.0
-        return _view_samples(atlas, corners, f, verts[i], imgs[i], msks[i], cams[i], sh_i,
-                             settings, flow, frags)  # fmt: skip
+        views = _view_samples(atlas, corners, f, verts[i], imgs[i], msks[i], cams[i], sh_i,
+                              settings, flow, frags)  # fmt: skip
+        drawn = frags.face_id.numpy() >= 0
+        union = int((drawn | msks[i]).sum())
+        return views, 1.0 - int((drawn & msks[i]).sum()) / max(union, 1)
 
     for r in range(settings.register_rounds + 1):
         top = _TopK(atlas.num_texels, settings.top_k)
         so_far = None if r == 0 else torch.as_tensor(image, dtype=torch.float64)
         label = "texture" if r == 0 else f"texture: registration {r}"
+        dense = settings.method == "graphcut" and r == settings.register_rounds
+        if dense:  # every view of every texel, for the graph cut
+            cos_all = np.zeros((n_frames, atlas.num_texels), np.float32)
+            colour_all = np.zeros((n_frames, atlas.num_texels, 3), np.float16)
+            silhouette = np.zeros(n_frames)
         # the frames are sampled side by side (``workers`` threads) and added in frame order
         with frame_pool(settings.workers) as pool:
             views_of = pool.map(partial(frame_views, so_far=so_far), range(n_frames))
-            for views in tqdm(views_of, total=n_frames, desc=label, unit="frame",
-                              disable=not progress):  # fmt: skip
+            for i, (views, err) in enumerate(tqdm(views_of, total=n_frames, desc=label,
+                                                  unit="frame", disable=not progress)):  # fmt: skip
                 top.add(views)
+                if dense:
+                    cos_all[i, views.texel] = np.maximum(views.cos, 1e-6)
+                    colour_all[i, views.texel] = views.colour
+                    silhouette[i] = err
         colour, count = top.median()
         seen = count > 0
+        if dense:
+            if graph is None:
+                graph = texel_graph(atlas, f, t, fu, verts[0])
+            merged, _ = merge_views(colour_all, cos_all, silhouette, graph, settings.graphcut)
+            colour = np.where(seen[:, None], merged, colour)
+            del cos_all, colour_all
         if mirror_vertices is not None and seen.any() and not seen.all():
             canonical = as_array(mirror_vertices, np.float64, "mirror_vertices")
             points = atlas.points(canonical, f)
