@@ -289,3 +289,31 @@ def test_heldout_poses_are_tracked_back_from_turned_key_frames(tiny_scene, anny3
     # measured: 20.0 dB with the true key-frame poses, 18.1 turned, 19.4 tracked
     assert interpolated.mask_db < right.mask_db - 1.0
     assert tracked.mask_db > interpolated.mask_db + 0.5
+
+
+def test_truth_regions_and_errors_by_region(tiny_scene):
+    """The regions split the truth where they should, and an error put on the face alone
+    shows in the face's figures and not in the garments'."""
+    _, _, folder = tiny_scene
+    truth = load_truth(folder, BodyCache())
+    r = truth.regions
+    assert set(r) == {"face", "garments", "hair", "skin"}
+    assert r["face"].sum() > 200 and r["garments"].sum() > 1000
+    for a in r:
+        for b in r:
+            assert a == b or not (r[a] & r[b]).any(), (a, b)
+    v, f = truth.vertices, truth.faces
+    assert v[r["face"], 2].mean() > v[r["hair"], 2].mean() + 0.03  # in front of the hair
+    lo, hi = v[:, 1].min(), v[:, 1].max()
+    assert v[r["face"], 1].min() > lo + 0.8 * (hi - lo)  # high up
+    n = vertex_normals(torch.as_tensor(v), torch.as_tensor(f)).numpy()
+    bumped = v + 0.003 * n * r["face"][:, None]
+    same, _ = surface_metrics(v, f, v, f, regions=r, with_scale=False)
+    assert same.normal_error_deg == pytest.approx(0.0, abs=1e-3)
+    assert all(mm < 1e-3 and deg < 1e-2 for mm, deg in same.regions.values())
+    m, _ = surface_metrics(bumped, f, v, f, regions=r, with_scale=False)
+    face_mm, face_deg = m.regions["face"]
+    garments_mm, garments_deg = m.regions["garments"]
+    # (the rigid alignment moves the body a little towards the bumped face)
+    assert 1.0 < face_mm <= 3.0 and garments_mm < 0.3 * face_mm
+    assert face_deg > 1.0 and garments_deg < 0.3 * face_deg

@@ -169,3 +169,24 @@ def test_heatmap_colours_and_files(tmp_path):
     assert Image.open(tmp_path / "h" / "s.png").size[0] == 960  # two 480-pixel views
     ply = trimesh.load(tmp_path / "h" / "s.ply", process=False)
     assert len(ply.vertices) == len(v)
+
+
+def test_table_shows_the_errors_by_region(tmp_path):
+    from dataclasses import replace
+
+    res = make_results(tmp_path)
+    for i, face in enumerate((2.0, 4.0)):  # the minimal and clothed estimated runs
+        m = res.runs[i].metrics
+        assert m is not None
+        surface = replace(m.surface, normal_error_deg=10.0 + i, rigid_normal_error_deg=20.0,
+                          regions={"face": (face, 6.0 + 2 * i), "garments": (1.0, 5.0)})
+        res.runs[i] = replace(res.runs[i], metrics=replace(m, surface=surface))
+    res.aggregate = aggregate(res.runs, MODES)
+    assert res.aggregate["estimated"]["all"]["regions"]["face"]["surface_error_mm"] == 3.0
+    table = render_markdown(res)
+    section = table.split("## By region")[1].split("##")[0]
+    row = next(line for line in section.splitlines() if line.startswith("| estimated |"))
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    # whole: surface mean of 4, 6, 8 mm; normal mean of the two runs that have it
+    assert cells[1] == "6.00 / 10.5" and cells[2].endswith("/ 20.0")
+    assert cells[3] == "3.00 / 7.0" and cells[4] == "1.00 / 5.0" and cells[5] == "– / –"

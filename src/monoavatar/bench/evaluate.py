@@ -82,7 +82,8 @@ def evaluate_reconstruction(
     # mesh of another resolution)
     same_mesh = recon.vertices.shape == (body.num_vertices, 3)
     surface, heat = surface_metrics(recon.vertices, recon.faces, truth.vertices, truth.faces,
-                                    rig=rig if same_mesh else None)  # fmt: skip
+                                    rig=rig if same_mesh else None,
+                                    regions=truth.regions)  # fmt: skip
 
     body_only_mm = None
     if body_only:

@@ -124,6 +124,8 @@ class SubjectTruth:
         sh: (N, 3, 9) SH lighting of each frame.
         root_transforms: (N, 4, 4) the ground-truth root joint's skinning transform of each
             frame (canonical → world, metres).
+        regions: named (V_gt,) bool vertex sets the errors are also reported on
+            (:func:`truth_regions`).
     """
 
     scene: SynthScene
@@ -133,6 +135,46 @@ class SubjectTruth:
     joint_names: tuple[str, ...]
     sh: np.ndarray
     root_transforms: np.ndarray
+    regions: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+REGIONS = ("face", "garments", "hair", "skin")
+"""The regions of :func:`truth_regions`."""
+
+
+def truth_regions(body: BodyModel, shape: np.ndarray, vertices: np.ndarray,
+                  garments: np.ndarray) -> dict[str, np.ndarray]:  # fmt: skip
+    """Named (V_f,) bool sets of the ground truth's canonical vertices: ``face`` (skin weighted
+    mostly to the head, in front of the plane halfway between the ears and the nose),
+    ``garments`` (top and bottom), ``hair``, and ``skin`` other than the face.
+
+    Args:
+        body: the model that generated the scene; shape: (S,) its shape parameters;
+        vertices: (V_f, 3) the clothed canonical mesh (the once-subdivided body's vertices);
+        garments: (V_f,) labels 0 skin, 1 top, 2 bottom, 3 hair, 4 shoes.
+    """
+    import torch
+
+    from monoavatar.body import MEDIAPIPE_LANDMARKS
+    from monoavatar.body.subdivide import subdivide
+
+    weights = subdivide(body.faces, body.uv, body.face_uv, body.skin_weights).weights.numpy()
+    if weights.shape[0] != len(vertices) or garments.shape != (len(vertices),):
+        raise MetricsError(
+            f"the ground truth has {len(vertices)} vertices, its body subdivided "
+            f"{weights.shape[0]} and {garments.shape} garment labels"
+        )
+    with torch.no_grad():
+        rest = body.rest_shape(torch.as_tensor(shape, dtype=body.dtype)[None])[0]
+        kp = body.keypoints(rest)[0].double().numpy()
+    names = list(MEDIAPIPE_LANDMARKS)
+    ears = 0.5 * (kp[names.index("left_ear"), 2] + kp[names.index("right_ear"), 2])
+    front = vertices[:, 2] > 0.5 * (ears + kp[names.index("nose"), 2])
+    head = weights[:, body.joint_index("head")] > 0.5
+    skin = garments == 0
+    face = skin & head & front
+    return {"face": face, "garments": (garments == 1) | (garments == 2),
+            "hair": garments == 3, "skin": skin & ~face}  # fmt: skip
 
 
 def load_truth(scene_folder: str | Path, bodies: BodyCache) -> SubjectTruth:
@@ -148,8 +190,10 @@ def load_truth(scene_folder: str | Path, bodies: BodyCache) -> SubjectTruth:
     vertices, faces = read_obj(scene.folder / "gt" / "subject_000" / "canonical.obj")
     with np.load(scene.folder / "gt" / "params.npz") as params:
         sh = np.asarray(params["sh"], dtype=np.float64)
+        garments = np.asarray(params["garments"][0])
+    regions = truth_regions(gt_body, gt.shapes[0], vertices, garments)
     return SubjectTruth(scene, vertices, faces, joints, tuple(gt_body.joint_names), sh,
-                        root_transforms)  # fmt: skip
+                        root_transforms, regions)  # fmt: skip
 
 
 # -- results ------------------------------------------------------------------------------------
@@ -173,6 +217,11 @@ class SurfaceMetrics:
         aligned_pose: (J, 3) the joint rotations (axis-angle, radians) that took the avatar's
             canonical pose to the truth's, None without pose alignment.
         pose_alignment: the similarity transform applied after that pose (None without).
+        normal_error_deg: the bi-directional normal angular error after the same alignment
+            as ``mean_mm`` (:func:`monoavatar.eval.compare_surfaces`), degrees.
+        rigid_normal_error_deg: the same after the similarity alignment alone.
+        regions: per region of the truth (``surface_metrics``'s ``regions``), the surface
+            error in mm and the normal error in degrees after the full alignment.
     """
 
     mean_mm: float
@@ -185,6 +234,9 @@ class SurfaceMetrics:
     pose_aligned: bool = False
     aligned_pose: np.ndarray | None = None
     pose_alignment: SimilarityTransform | None = None
+    normal_error_deg: float | None = None
+    rigid_normal_error_deg: float | None = None
+    regions: dict[str, tuple[float, float]] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -298,6 +350,10 @@ class SubjectMetrics:
             "alignment_scale": self.surface.scale,
             "surface_error_rigid_mm": self.surface.rigid_mean_mm,
             "pose_aligned": self.surface.pose_aligned,
+            "normal_error_deg": self.surface.normal_error_deg,
+            "normal_error_rigid_deg": self.surface.rigid_normal_error_deg,
+            "regions": {name: {"surface_error_mm": mm, "normal_error_deg": deg}
+                        for name, (mm, deg) in self.surface.regions.items()},
             "body_only_error_mm": self.body_only_mm,
             "shape_only_error_mm": self.shape_only_mm,
             "pa_mpjpe_mm": self.pa_mpjpe_mm,
@@ -332,6 +388,10 @@ class SubjectMetrics:
 # -- surface ------------------------------------------------------------------------------------
 
 
+def _mm_deg(region: tuple[float, float]) -> tuple[float, float]:
+    return 1000.0 * region[0], region[1]
+
+
 @dataclass(frozen=True)
 class Rig:
     """What the articulated pose alignment needs of a reconstruction's canonical mesh.
@@ -355,19 +415,23 @@ def surface_metrics(
     icp_points: int = ICP_POINTS,
     with_scale: bool = True,
     rig: Rig | None = None,
+    regions: dict[str, np.ndarray] | None = None,
 ) -> tuple[SurfaceMetrics, HeatMap]:
     """Similarity alignment (ICP) of a canonical prediction to the ground truth, then, with a
     ``rig``, the articulated pose alignment (:func:`~monoavatar.bench.pose_alignment.
     align_pose_and_scale`); then the exact bi-directional vertex-to-surface error on all
     vertices (metres in, mm out). ``with_scale=False`` aligns rotation and translation only
-    (and skips the pose alignment, which fits a scale)."""
-    from monoavatar.eval import align_icp, bidirectional_surface_error
+    (and skips the pose alignment, which fits a scale). The normal angular error is measured
+    after each alignment, and both errors on each of ``regions`` ((V_gt,) bool ground-truth
+    vertex sets) after the last."""
+    from monoavatar.eval import align_icp, compare_surfaces
 
     icp = align_icp(pred_vertices, gt_vertices, gt_faces, source_faces=pred_faces,
                     with_scale=with_scale, max_points=icp_points)  # fmt: skip
     aligned = icp.transform.apply(pred_vertices)
-    error = bidirectional_surface_error(aligned, pred_faces, gt_vertices, gt_faces)
-    rigid_mm = 1000.0 * error.mean
+    error = compare_surfaces(aligned, pred_faces, gt_vertices, gt_faces)
+    rigid_mm = 1000.0 * error.distance
+    rigid_deg = error.angle
     posed = rig is not None and with_scale
     fit = None
     if posed:
@@ -378,21 +442,24 @@ def surface_metrics(
                                    rig.parents, gt_vertices, gt_faces, icp.transform,
                                    max_points=icp_points)  # fmt: skip
         aligned = fit.vertices
-        error = bidirectional_surface_error(aligned, pred_faces, gt_vertices, gt_faces)
+        error = compare_surfaces(aligned, pred_faces, gt_vertices, gt_faces)
     a, b = error.pred_to_gt, error.gt_to_pred
-    mean = error.mean
+    mean = error.distance
     # equal-weight mixture of both directions, consistent with the mean
     var = 0.5 * (a.var() + (a.mean() - mean) ** 2) + 0.5 * (b.var() + (b.mean() - mean) ** 2)
     metrics = SurfaceMetrics(
         mean_mm=1000.0 * mean,
         std_mm=1000.0 * float(np.sqrt(var)),
-        pred_to_gt_mm=1000.0 * error.pred_to_gt_mean,
-        gt_to_pred_mm=1000.0 * error.gt_to_pred_mean,
+        pred_to_gt_mm=1000.0 * float(a.mean()),
+        gt_to_pred_mm=1000.0 * float(b.mean()),
         scale=float(icp.transform.scale),
         alignment=icp.transform,
         rigid_mean_mm=rigid_mm,
         pose_aligned=posed,
         aligned_pose=None if fit is None else fit.pose,
         pose_alignment=None if fit is None else fit.transform,
+        normal_error_deg=error.angle,
+        rigid_normal_error_deg=rigid_deg,
+        regions={name: _mm_deg(error.region(mask)) for name, mask in (regions or {}).items()},
     )
     return metrics, HeatMap(aligned, np.asarray(pred_faces), error.pred_to_gt)

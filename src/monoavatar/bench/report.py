@@ -22,7 +22,7 @@ import numpy as np
 from PIL import Image, ImageDraw
 
 from monoavatar.bench.heldout import ROOT_OFF_DEG
-from monoavatar.bench.metrics import HeatMap, SubjectMetrics
+from monoavatar.bench.metrics import REGIONS, HeatMap, SubjectMetrics
 from monoavatar.bench.suite import CATEGORIES, BenchMode, BenchSubject, BenchSuite
 
 __all__ = [
@@ -228,6 +228,15 @@ def _group(runs: list[RunResult]) -> dict[str, Any]:
     out["surface_error_min_mm"] = float(means.min())
     out["surface_error_max_mm"] = float(means.max())
     out["surface_error_rigid_mm"] = _mean([m.surface.rigid_mean_mm for m in ms])
+    out["normal_error_deg"] = _mean([m.surface.normal_error_deg for m in ms])
+    out["normal_error_rigid_deg"] = _mean([m.surface.rigid_normal_error_deg for m in ms])
+    out["regions"] = {
+        region: {"surface_error_mm": _mean([m.surface.regions.get(region, (None, None))[0]
+                                            for m in ms]),
+                 "normal_error_deg": _mean([m.surface.regions.get(region, (None, None))[1]
+                                            for m in ms])}
+        for region in REGIONS
+    }  # fmt: skip
     out["body_only_error_mm"] = _mean([m.body_only_mm for m in ms])
     shape_only = [m.shape_only_mm for m in ms]
     out["shape_only_error_mm"] = (
@@ -349,6 +358,31 @@ def render_markdown(results: BenchResults) -> str:
             kinect += ["–", f"{pub['estimated']['KinectCap']:.2f}" if name == "estimated" else "–"]
     lines.append("| " + " | ".join(kinect) + " |")
 
+    lines += [
+        "",
+        "## By region: surface error (mm) / normal angular error (°)",
+        "",
+        "After the same alignment; the normal error is the bi-directional angle between each "
+        "vertex's normal and the other surface's at its closest point "
+        "(`monoavatar.eval.compare_surfaces`). Regions are ground-truth vertex sets: the face "
+        "(skin of the head in front of the ears), the garments (top and bottom), hair, and the "
+        "rest of the skin; all subjects.",
+        "",
+        "| mode | whole | whole, similarity only | " + " | ".join(REGIONS) + " |",
+        "|" + "---|" * (3 + len(REGIONS)),
+    ]
+    for name in names:
+        a = agg.get(name, {}).get("all", {})
+        if "normal_error_deg" not in a:
+            continue
+        cells = [f"{_fmt(a.get('surface_error_mm'))} / {_fmt(a.get('normal_error_deg'), 1)}",
+                 f"{_fmt(a.get('surface_error_rigid_mm'))} / "
+                 f"{_fmt(a.get('normal_error_rigid_deg'), 1)}"]  # fmt: skip
+        for region in REGIONS:
+            r = a.get("regions", {}).get(region, {})
+            cells.append(f"{_fmt(r.get('surface_error_mm'))} / "
+                         f"{_fmt(r.get('normal_error_deg'), 1)}")  # fmt: skip
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
     lines += [
         "",
         "## Other measures",
