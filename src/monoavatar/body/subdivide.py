@@ -4,7 +4,8 @@ Every edge (i, j) gets a new vertex ``v_{N+e} = ½ (v_i + v_j) + s_e n_e`` (Eq. 
 ``n_e`` the mean of the two vertex normals in the canonical pose and ``s_e`` a displacement
 along it (0 for plain 4-way midpoint subdivision, Sec. E.4.1). Each triangle becomes four. UVs,
 which are indexed separately (seams), are subdivided on their own index set; skinning weights
-of a new vertex are the mean of its edge's two vertices.
+of a new vertex are the mean of its edge's two vertices. :func:`smooth_displacement` gives the
+``s_e`` of the smoothest fine surface through the coarse vertices (Eq. C.4).
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from monoavatar.core.geometry import vertex_normals
+from monoavatar.core.geometry import cotangent_laplacian, vertex_normals
 
 
 def _edges_and_faces(faces: np.ndarray, offset: int) -> tuple[np.ndarray, np.ndarray]:
@@ -108,3 +109,35 @@ def subdivide(faces: Tensor, uv: Tensor, face_uv: Tensor, weights: Tensor) -> Su
         weights=new_w,
         num_coarse=V,
     )
+
+
+def smooth_displacement(sub: Subdivision, vertices: Tensor | np.ndarray,
+                        coarse_faces: Tensor | np.ndarray) -> Tensor:  # fmt: skip
+    """The displacements ``s`` (E,) of Eq. C.4: the fine surface through the coarse vertices
+    whose new vertices, moved along their edge normals (Eq. C.3), minimise ``‖L M_f‖²``, L the
+    cotangent Laplacian of the midpoint-subdivided mesh (its weights held fixed), metres.
+
+    A linear least-squares problem in ``s``; solved by its normal equations (sparse, E × E).
+
+    Args:
+        sub: the subdivision; vertices: (V, 3) coarse canonical vertices, metres;
+        coarse_faces: (F, 3) their faces.
+    """
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
+
+    v = torch.as_tensor(np.asarray(vertices, np.float64))[None]
+    n = vertex_normals(v, torch.as_tensor(np.asarray(coarse_faces)))
+    edges = sub.edges.cpu().numpy()
+    e_n = (n[0, edges[:, 0]] + n[0, edges[:, 1]]).numpy()
+    e_n /= np.maximum(np.linalg.norm(e_n, axis=1, keepdims=True), 1e-12)
+    mid = sub.apply(v)[0].numpy()  # s = 0
+    L = sp.csr_matrix(cotangent_laplacian(mid, sub.faces.cpu().numpy()))
+    new = L[:, sub.num_coarse :]
+    # L (mid + N s) per coordinate c: L mid_c + L_new diag(n_c) s
+    A = sp.vstack([new @ sp.diags(e_n[:, c]) for c in range(3)]).tocsr()
+    b = -np.concatenate([L @ mid[:, c] for c in range(3)])
+    AtA = (A.T @ A).tocsc()
+    ridge = 1e-9 * float(AtA.diagonal().mean())  # edges that no residual sees stay at 0
+    s = spla.spsolve(AtA + ridge * sp.identity(AtA.shape[0], format="csc"), A.T @ b)
+    return torch.as_tensor(np.asarray(s))

@@ -1,5 +1,5 @@
-"""Mesh geometry shared by every layer above: argument checks for vertex and face arrays, and
-area-weighted vertex normals."""
+"""Mesh geometry shared by every layer above: argument checks for vertex and face arrays,
+area-weighted vertex normals and the cotangent Laplacian."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-__all__ = ["face_indices", "float_tensor", "vertex_normals", "writable"]
+__all__ = ["cotangent_laplacian", "face_indices", "float_tensor", "vertex_normals", "writable"]
 
 
 def writable(x: object) -> object:
@@ -65,3 +65,31 @@ def vertex_normals(vertices: Tensor | np.ndarray, faces: Tensor | np.ndarray) ->
     for k in range(3):
         acc = acc.index_add(-2, f[:, k], face_n)
     return F.normalize(acc, dim=-1)
+
+
+def cotangent_laplacian(vertices: np.ndarray, faces: np.ndarray) -> object:
+    """The cotangent Laplacian ``L`` of a triangle mesh, a (V, V) scipy CSR matrix with
+    ``(L x)_i = Σ_j w_ij (x_i − x_j)``, ``w_ij = ½ (cot α_ij + cot β_ij)`` over the angles
+    opposite edge (i, j) (one on a boundary edge). Symmetric, rows sum to 0; positive
+    semi-definite when no angle is obtuse.
+
+    Args:
+        vertices: (V, 3) positions; faces: (F, 3) vertex indices.
+    """
+    import scipy.sparse as sp
+
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces, np.int64)
+    rows, cols, vals = [], [], []
+    for k in range(3):
+        i, j, o = f[:, (k + 1) % 3], f[:, (k + 2) % 3], f[:, k]  # edge (i, j) opposite o
+        a, b = v[i] - v[o], v[j] - v[o]
+        cross = np.linalg.norm(np.cross(a, b), axis=1)
+        cot = np.einsum("nc,nc->n", a, b) / np.maximum(cross, 1e-20)
+        rows += [i, j]
+        cols += [j, i]
+        vals += [0.5 * cot, 0.5 * cot]
+    n = len(v)
+    W = sp.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                      shape=(n, n)).tocsr()  # fmt: skip
+    return sp.diags(np.asarray(W.sum(axis=1)).ravel()) - W
