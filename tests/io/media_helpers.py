@@ -32,10 +32,13 @@ def write_video(
     fps: int = 25,
     codec: str = "libx264",
     rotation: int | None = None,
+    faststart: bool = False,
 ) -> Path:
     """Encode frames ``frame_image(0..n-1)`` with PyAV; ``rotation`` sets the display matrix
-    (degrees counter-clockwise, PyAV's convention)."""
-    container = av.open(str(path), "w")
+    (degrees counter-clockwise, PyAV's convention); ``faststart`` writes the index (moov box)
+    before the data, as streaming-friendly mp4s have it."""
+    options = {"movflags": "faststart"} if faststart else {}
+    container = av.open(str(path), "w", options=options)
     stream = container.add_stream(codec, rate=fps)
     stream.width, stream.height = width, height
     stream.pix_fmt = "yuv420p"

@@ -14,6 +14,7 @@ from monoavatar.io import (
     FrameSelection,
     InputNotFoundError,
     NotAVideoError,
+    TruncatedVideoError,
     count_video_frames,
     read_frames,
     read_video,
@@ -229,8 +230,45 @@ def test_truncated_video(tmp_path: Path) -> None:
     data = path.read_bytes()
     cut = tmp_path / "cut.mp4"
     cut.write_bytes(data[: len(data) // 2])  # the index (moov box) at the end is lost
-    with pytest.raises((NotAVideoError, EmptyVideoError), match=r"cut\.mp4"):
+    with pytest.raises(TruncatedVideoError, match=r"cut\.mp4: .*cut short.*copy it again"):
         read_video(cut)
+
+
+def test_truncated_faststart_video_is_refused_not_read_in_part(tmp_path: Path) -> None:
+    # the index comes first (a streaming-friendly mp4): the header announces every frame, the
+    # data of most is gone; reading the rest would make an avatar from part of the turn
+    path = write_video(tmp_path / "f.mp4", n=24, faststart=True)
+    data = path.read_bytes()
+    start = data.find(b"mdat")
+    cut = tmp_path / "cut.mp4"
+    cut.write_bytes(data[: start + (len(data) - start) * 4 // 10])
+    with pytest.raises(TruncatedVideoError, match=r"'mdat' box .* 40 % of it is there"):
+        read_video(cut)
+    assert read_video(path).images.shape[0] == 24  # the whole file is fine
+
+
+def test_truncated_avi(tmp_path: Path) -> None:
+    path = write_video(tmp_path / "a.avi", n=30, codec="mpeg4")
+    data = path.read_bytes()
+    cut = tmp_path / "cut.avi"
+    cut.write_bytes(data[: len(data) // 2])
+    with pytest.raises(TruncatedVideoError, match=r"declares .* but only 50 % of it"):
+        read_video(cut)
+
+
+def test_a_header_announcing_more_frames_than_the_file_holds(tmp_path: Path,
+                                                             monkeypatch: pytest.MonkeyPatch,
+                                                             ) -> None:  # fmt: skip
+    # (a container whose header counts frames its data no longer has, e.g. a cut AVI or MKV
+    # that FFmpeg still opens); the header's count is PyAV's ``stream.frames``
+    from monoavatar.io import video
+
+    path = write_video(tmp_path / "h.mp4", n=20)
+    monkeypatch.setattr(video, "_announced_frames", lambda stream: 40)
+    with pytest.raises(TruncatedVideoError, match=r"announces 40 frames but only 20 .* \(50 %\)"):
+        read_video(path)
+    monkeypatch.setattr(video, "_announced_frames", lambda stream: 21)  # 95 %: usable
+    assert read_video(path).images.shape[0] == 20
 
 
 def test_bad_arguments(make_video) -> None:

@@ -45,6 +45,11 @@ class EmptyVideoError(InputError):
     """The video (or image folder, or the selected time range) holds no decodable frame."""
 
 
+class TruncatedVideoError(InputError):
+    """The video file is cut short (an interrupted copy, download or recording): its own
+    structure says it should be longer."""
+
+
 class CorruptFrameError(InputError):
     """A frame could not be decoded (raised only when corrupt frames are not to be skipped).
 

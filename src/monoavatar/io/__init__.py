@@ -15,6 +15,7 @@ from monoavatar.core.errors import (
     InputNotFoundError,
     InputWarning,
     NotAVideoError,
+    TruncatedVideoError,
     UnsafePickleError,
 )
 from monoavatar.io.frames import Frames, FrameSelection
@@ -40,6 +41,7 @@ __all__ = [
     "InputNotFoundError",
     "InputWarning",
     "NotAVideoError",
+    "TruncatedVideoError",
     "UnsafePickleError",
     "count_video_frames",
     "default_camera",

@@ -27,6 +27,7 @@ from monoavatar.core.errors import (
     InputFormatError,
     InputNotFoundError,
     NotAVideoError,
+    TruncatedVideoError,
     format_indices,
 )
 from monoavatar.io.frames import Frames, FrameSelection, resize_max_side
@@ -34,6 +35,61 @@ from monoavatar.io.frames import Frames, FrameSelection, resize_max_side
 VIDEO_EXTENSIONS = (".mp4", ".mov", ".m4v", ".avi", ".webm", ".mkv", ".mpg", ".mpeg", ".wmv")
 
 OnCorrupt = Literal["skip", "raise"]
+
+TRUNCATED_SHARE = 0.9
+"""A video holding fewer than this share of the frames its header announces is refused as
+truncated (a partial turn would make a wrong avatar, silently)."""
+
+
+_ISO_BOXES = (b"ftyp", b"moov", b"mdat", b"free", b"skip", b"wide", b"uuid", b"meta", b"moof",
+              b"mfra", b"pdin", b"styp", b"sidx")  # fmt: skip
+
+
+def _megabytes(n: int) -> str:
+    return f"{n / 1e6:.1f} MB" if n >= 100_000 else f"{n / 1e3:.1f} kB"
+
+
+def _mp4_truncation(path: Path) -> str | None:
+    """What says a file is cut short, else None. An MP4 / MOV file (ISO base media): a
+    top-level box that runs past the end of the file, or media data without its index (the
+    ``moov`` box, written last by most recorders). An AVI (RIFF) file: a declared size beyond
+    the end. Other files: None."""
+    size = path.stat().st_size
+    boxes: list[bytes] = []
+    with path.open("rb") as fh:
+        head = fh.read(12)
+        if head[:4] == b"RIFF" and head[8:12] == b"AVI ":
+            declared = int.from_bytes(head[4:8], "little") + 8
+            if declared > size:
+                return (f"the file is cut short: it declares {_megabytes(declared)} but only "
+                        f"{100.0 * size / declared:.0f} % of it is there (an interrupted copy, "
+                        "download or recording); copy it again from the source")  # fmt: skip
+            return None
+        offset = 0
+        while offset + 8 <= size:
+            fh.seek(offset)
+            head = fh.read(16)
+            length, kind = int.from_bytes(head[:4], "big"), head[4:8]
+            if not boxes and kind != b"ftyp":
+                return None  # not an ISO media file
+            if length == 1 and len(head) == 16:
+                length = int.from_bytes(head[8:16], "big")
+            elif length == 0:
+                length = size - offset
+            if length < 8 or kind not in _ISO_BOXES:
+                return None  # not a box structure we know: leave it to FFmpeg
+            boxes.append(kind)
+            if offset + length > size:
+                have = 100.0 * (size - offset) / length
+                return (f"the file is cut short: its {kind.decode()!r} box needs "
+                        f"{_megabytes(length)} but only {have:.0f} % of it is there "
+                        "(an interrupted copy, download or recording); copy it again "
+                        "from the source")  # fmt: skip
+            offset += length
+    if boxes and b"mdat" in boxes and b"moov" not in boxes and b"moof" not in boxes:
+        return ("the file has video data but no index (its 'moov' box is missing): the "
+                "recording or copy was cut short; copy it again from the source")  # fmt: skip
+    return None
 
 
 @contextmanager
@@ -43,10 +99,16 @@ def _open_video(path: Path) -> Iterator[tuple[Any, Any]]:
     try:
         container = av.open(str(path))
     except av.error.EOFError as exc:
+        truncated = _mp4_truncation(path)
+        if truncated:
+            raise TruncatedVideoError(path, truncated) from exc
         raise EmptyVideoError(
             path, "the file ends before any frame (an empty or truncated video)"
         ) from exc
     except av.error.FFmpegError as exc:
+        truncated = _mp4_truncation(path)
+        if truncated:
+            raise TruncatedVideoError(path, truncated) from exc
         raise NotAVideoError(path, f"not a video ({exc.strerror or exc})") from exc
     try:
         if not container.streams.video:
@@ -56,12 +118,26 @@ def _open_video(path: Path) -> Iterator[tuple[Any, Any]]:
         container.close()
 
 
+def _announced_frames(stream: Any) -> int:
+    """The frame count a video stream's header announces (0 when it does not say)."""
+    return int(stream.frames or 0)
+
+
 def _packet_times(path: Path) -> tuple[list[int], float, str | None]:
     """Presentation timestamps of all video packets (sorted), the time base, and the error that
-    stopped demuxing early (None when the whole file was read)."""
+    stopped demuxing early (None when the whole file was read).
+
+    Raises:
+        TruncatedVideoError: the file's structure or its header's frame count says it was cut
+            short (fewer than :data:`TRUNCATED_SHARE` of the announced frames are there).
+    """
     stamps: list[int] = []
     problem: str | None = None
+    truncated = _mp4_truncation(path)
+    if truncated:
+        raise TruncatedVideoError(path, truncated)
     with _open_video(path) as (container, stream):
+        announced = _announced_frames(stream)
         time_base = float(stream.time_base) if stream.time_base else 1.0
         try:
             for n, packet in enumerate(container.demux(stream)):
@@ -71,7 +147,15 @@ def _packet_times(path: Path) -> tuple[list[int], float, str | None]:
                 stamps.append(int(ts) if ts is not None else n)
         except av.error.FFmpegError as exc:
             problem = f"the file could not be read past frame {len(stamps)} ({exc.strerror or exc})"
-    return sorted(set(stamps)), time_base, problem
+    stamps = sorted(set(stamps))
+    if announced and len(stamps) < TRUNCATED_SHARE * announced:
+        raise TruncatedVideoError(
+            path,
+            f"the file is cut short: its header announces {announced} frames but only "
+            f"{len(stamps)} are in it ({100 * len(stamps) / announced:.0f} %); copy it again "
+            "from the source",
+        )
+    return stamps, time_base, problem
 
 
 def _rotate(image: np.ndarray, rotation: float) -> np.ndarray:
@@ -102,6 +186,7 @@ def read_video(
     Raises:
         InputNotFoundError: no such file.
         NotAVideoError: not a container FFmpeg opens, or no video stream in it.
+        TruncatedVideoError: the file was cut short (its structure or its header says so).
         EmptyVideoError: no frame in the video or in the selected time range, or every
             selected frame is corrupt.
         CorruptFrameError: a selected frame is corrupt and ``on_corrupt="raise"``.
