@@ -64,6 +64,9 @@ CASES: dict[str, tuple[Callable[[Path], Path], list[str], str]] = {
     "avi cut short": (_avi_cut, [], r"cut short: it declares"),
     "height in centimetres": (_video, ["--height", "175"], r"metres"),
     "frames below two": (_video, ["--frames", "1"], r"at least 2"),
+    "frames beyond any use": (_video, ["--frames", "100000"], r"at most 600 key-frames"),
+    "texture too large": (_video, ["--texture-size", "100000"], r"\[16, 8192\] texels"),
+    "max side too small": (_video, ["--max-side", "100"], r"\[256, 4096\] pixels"),
 }
 
 

@@ -254,3 +254,32 @@ def test_texture_option_reaches_the_config(tmp_path: Path) -> None:
     assert _config(args).texture.method == "median"
     with pytest.raises(SystemExit):
         parser.parse_args(["reconstruct", "video.mp4", "-o", "o", "--texture", "mean"])
+
+
+def test_large_video_is_reconstructed_at_max_side_with_its_focal_scaled(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    import monoavatar.perception as perception
+    from monoavatar.core.errors import InputWarning
+    from monoavatar.pipelines.stages import InputSettings, load_inputs
+    from tests.io.media_helpers import write_video
+
+    seen = {}
+
+    class Stop(Exception):
+        pass
+
+    def fake_perceive(frames, camera, settings, **kw):  # type: ignore[no-untyped-def]
+        seen["frames"], seen["camera"] = frames, camera
+        raise Stop
+
+    monkeypatch.setattr(perception, "perceive", fake_perceive)
+    video = write_video(tmp_path / "big.mp4", n=4, width=640, height=360)
+    with pytest.warns(InputWarning, match=r"640x360 are reconstructed at 256x144"), \
+            pytest.raises(Stop):  # fmt: skip
+        load_inputs(video, InputSettings(frames=4, focal=500.0, max_side=256))
+    assert seen["frames"].images.shape[1:3] == (144, 256)
+    assert seen["camera"].K[0, 0] == pytest.approx(500.0 * 256 / 640)
+    with pytest.raises(Stop):
+        load_inputs(video, InputSettings(frames=4, focal=500.0, max_side=None))
+    assert seen["frames"].images.shape[1:3] == (360, 640)
+    assert seen["camera"].K[0, 0] == pytest.approx(500.0)

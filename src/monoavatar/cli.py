@@ -174,6 +174,9 @@ def _add_input_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-grabcut", action="store_true",
                    help="keep mediapipe's person masks as they are, without the GrabCut "
                    "refinement of their boundary (on by default)")  # fmt: skip
+    _option(p, "--max-side", InputSettings, "max_side", "larger frames of a video or image "
+            "folder are downscaled so that their longer side has this many pixels (0 keeps "
+            "the source's size)", type=int, metavar="PX")  # fmt: skip
     p.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
@@ -194,6 +197,7 @@ def _config(args: argparse.Namespace, **options: Any) -> ReconstructConfig:
                 frames=args.frames, focal=args.focal, camera=args.camera,
                 perception=args.perception, poses=getattr(args, "pose_source", "fit"),
                 perception_settings=replace(PerceptionSettings(), grabcut=not args.no_grabcut),
+                max_side=getattr(args, "max_side", _default(InputSettings, "max_side")) or None,
             ),
             device=getattr(args, "device", base.device),
             body_model=getattr(args, "model", base.body_model),

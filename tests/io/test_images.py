@@ -73,7 +73,19 @@ def test_single_image(tmp_path: Path) -> None:
     _save(tmp_path / "me.png", 5, size=(40, 20))
     frames = read_frames(tmp_path / "me.png")
     assert frames.images.shape == (1, 20, 40, 3)
-    assert read_image(tmp_path / "me.png", max_side=20).images.shape == (1, 10, 20, 3)
+    small = read_image(tmp_path / "me.png", max_side=20)
+    assert small.images.shape == (1, 10, 20, 3)
+    assert small.source_size == (40, 20) and small.scale == 0.5
+    assert frames.source_size is None
+
+
+def test_folder_downscaled_image_by_image(tmp_path: Path) -> None:
+    for k in range(3):
+        _save(tmp_path / f"{k}.png", k, size=(40, 20))
+    frames = read_image_folder(tmp_path, max_side=20)
+    assert frames.images.shape == (3, 10, 20, 3)
+    assert frames.source_size == (40, 20) and frames.scale == 0.5
+    assert read_image_folder(tmp_path, max_side=40).source_size is None
 
 
 def test_corrupt_image_skipped_or_raised(tmp_path: Path) -> None:

@@ -276,3 +276,17 @@ def test_bad_arguments(make_video) -> None:
         read_video(make_video(n=2), on_corrupt="ignore")  # type: ignore[arg-type]
     with pytest.raises(NotAVideoError, match="not a file"):
         read_video(make_video(n=2).parent)
+
+
+def test_large_frames_are_downscaled_on_reading(tmp_path: Path) -> None:
+    path = write_video(tmp_path / "big.mp4", n=3, width=320, height=240)
+    frames = read_video(path, max_side=160)
+    assert frames.images.shape[1:3] == (120, 160)
+    assert frames.source_size == (320, 240) and frames.scale == pytest.approx(0.5)
+    # the downscaled frame is the full one resized (area interpolation), not a crop
+    full = read_video(path)
+    assert full.source_size is None and full.scale == 1.0
+    small = full.images[0].reshape(120, 2, 160, 2, 3).mean(axis=(1, 3))
+    assert np.abs(frames.images[0].astype(float) - small).mean() < 2.0
+    assert read_video(path, max_side=400).source_size is None  # already small enough
+    assert frames.subset([0, 2]).source_size == (320, 240)

@@ -111,6 +111,8 @@ class Frames:
             counted before selection), e.g. ``[0, 5, 10]`` for ``step=5``.
         fps: frame rate of the source in frames per second; ``None`` when unknown.
         source: where the frames came from (a path, or a short description).
+        source_size: (width, height) of the source's frames when they were downscaled on
+            reading (``max_side``); None when the images are the source's size.
     """
 
     images: np.ndarray
@@ -118,6 +120,14 @@ class Frames:
     indices: np.ndarray
     fps: float | None = None
     source: str = "<array>"
+    source_size: tuple[int, int] | None = None
+
+    @property
+    def scale(self) -> float:
+        """These images' pixels per source pixel (below 1 when downscaled on reading)."""
+        if self.source_size is None:
+            return 1.0
+        return float(self.images.shape[2]) / float(self.source_size[0])
 
     def __post_init__(self) -> None:
         images = np.asarray(self.images)
@@ -193,6 +203,7 @@ class Frames:
             indices=self.indices[pos],
             fps=self.fps,
             source=self.source,
+            source_size=self.source_size,
         )
 
     def resized(self, max_side: int) -> Frames:
@@ -209,6 +220,7 @@ class Frames:
             indices=self.indices,
             fps=self.fps,
             source=self.source,
+            source_size=self.source_size or (self.width, self.height),
         )
 
 

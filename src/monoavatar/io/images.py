@@ -65,11 +65,13 @@ def load_image(path: str | Path) -> np.ndarray:
 def read_image(path: str | Path, *, max_side: int | None = None) -> Frames:
     """A single image as one frame (index 0, NaN timestamp, unknown fps)."""
     image = load_image(path)
-    if max_side is not None:
+    source_size = None
+    if max_side is not None and max(image.shape[:2]) > max_side:
+        source_size = (image.shape[1], image.shape[0])
         image = resize_max_side(image, max_side)
     return Frames(
         images=image[None], timestamps=np.full(1, np.nan), indices=np.zeros(1, np.int64),
-        fps=None, source=str(path),
+        fps=None, source=str(path), source_size=source_size,
     )
 
 
@@ -121,18 +123,23 @@ def read_image_folder(
     images: list[np.ndarray] = []
     kept: list[int] = []
     bad: list[tuple[int, str]] = []
+    first_size: tuple[int, int] | None = None  # (width, height) of the first image read
     for i in keep.tolist():
         try:
             image = load_image(files[i])
         except InputFormatError as exc:
             bad.append((i, f"{files[i].name}: {exc.problem}"))
             continue
-        if images and image.shape != images[0].shape:
+        size = (image.shape[1], image.shape[0])
+        if first_size is not None and size != first_size:
             raise InputFormatError(
                 files[i],
-                f"image size {image.shape[1]}x{image.shape[0]} differs from the folder's first "
-                f"image {files[kept[0]].name} ({images[0].shape[1]}x{images[0].shape[0]})",
+                f"image size {size[0]}x{size[1]} differs from the folder's first "
+                f"image {files[kept[0]].name} ({first_size[0]}x{first_size[1]})",
             )
+        first_size = size
+        if max_side is not None:  # per image: a folder of large photos need not fit in memory
+            image = resize_max_side(image, max_side)
         images.append(image)
         kept.append(i)
     if bad:
@@ -148,12 +155,12 @@ def read_image_folder(
             stacklevel=2,
         )
     stack = np.stack(images)
-    if max_side is not None:
-        stack = resize_max_side(stack, max_side)
+    assert first_size is not None
     return Frames(
         images=stack,
         timestamps=times[kept],
         indices=np.asarray(kept, dtype=np.int64),
         fps=fps,
         source=str(folder),
+        source_size=first_size if stack.shape[2] != first_size[0] else None,
     )

@@ -216,6 +216,7 @@ def read_video(
     last_wanted = int(keep[-1])
 
     decoded: dict[int, np.ndarray] = {}
+    source_size: tuple[int, int] | None = None
     corrupt: set[int] = set()
     fps: float | None = None
     with _open_video(path) as (container, stream):
@@ -243,6 +244,8 @@ def read_video(
                         continue
                     image = _rotate(frame.to_ndarray(format="rgb24"), frame.rotation or 0)
                     if max_side is not None:  # per frame: a long 4K video need not fit in memory
+                        if max(image.shape[:2]) > max_side:
+                            source_size = (image.shape[1], image.shape[0])
                         image = resize_max_side(image, max_side)
                     decoded[index] = image
                 if sequential > last_wanted:
@@ -281,6 +284,7 @@ def read_video(
         indices=np.asarray(order, dtype=np.int64),
         fps=fps,
         source=str(path),
+        source_size=source_size,
     )
 
 

@@ -58,6 +58,13 @@ from monoavatar.texture.backproject import TextureSettings, UVTexture
 __all__ = ["ReconstructConfig", "ReconstructResult", "fit_avatar", "reconstruct", "shape_rounds"]
 
 
+MAX_KEYFRAMES = 600
+"""The most key-frames ``reconstruct`` takes."""
+
+MAX_TEXTURE_SIZE = 8192
+"""The largest texture side (an 8192² texture takes 200 MB as uint8, more while built)."""
+
+
 @dataclass
 class ReconstructConfig:
     """Options of :func:`reconstruct`; the CLI's options are derived from these fields and
@@ -93,6 +100,9 @@ class ReconstructConfig:
         height, focal = self.pose.height, self.input.focal
         checks = [
             (self.input.frames >= 2, f"--frames must be at least 2, got {self.input.frames}"),
+            (self.input.frames <= MAX_KEYFRAMES,
+             f"--frames must be at most {MAX_KEYFRAMES} key-frames (each is fitted and held "
+             f"in memory; 120 is the default), got {self.input.frames}"),
             (self.refine_rounds >= 0, f"--refine-rounds must be >= 0, got {self.refine_rounds}"),
             (self.flow_rounds >= 0, f"--flow-rounds must be >= 0, got {self.flow_rounds}"),
             (self.flow.workers >= 1 and self.texture.workers >= 1,
@@ -101,8 +111,9 @@ class ReconstructConfig:
              f"--height is in metres (0.5 to 2.6), got {height}; 175 cm is 1.75"),
             (focal is None or focal > 0,
              f"--focal must be a positive number of pixels, got {focal}"),
-            (self.texture.size >= 16,
-             f"--texture-size must be at least 16, got {self.texture.size}"),
+            (16 <= self.texture.size <= MAX_TEXTURE_SIZE,
+             f"--texture-size must lie in [16, {MAX_TEXTURE_SIZE}] texels, got "
+             f"{self.texture.size}"),
             (self.input.perception in PERCEPTION,
              f"perception must be one of {PERCEPTION}, got {self.input.perception!r}"),
             (self.input.poses in POSES,

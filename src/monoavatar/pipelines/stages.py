@@ -31,7 +31,7 @@ import numpy as np
 import torch
 
 from monoavatar.body import BodyModel, load_body_model
-from monoavatar.core.errors import InputError, InputFormatError, MonoavatarError
+from monoavatar.core.errors import InputError, InputFormatError, InputWarning, MonoavatarError
 from monoavatar.datasets.synth_scene import SynthGroundTruth
 from monoavatar.fit.flow_refine import FlowRefineSettings, refine_poses_with_flow
 from monoavatar.fit.pose import PoseSettings, PoseTrack, evaluate_fit, fit_poses, refine_poses
@@ -142,6 +142,9 @@ class InputSettings:
             when present, else mediapipe), ``"mediapipe"`` or ``"ground-truth"``.
         poses: ``"fit"``, or ``"ground-truth"`` (synth folders only).
         perception_settings: options of mediapipe perception.
+        max_side: videos and image folders whose frames are larger are downscaled so that the
+            longer side has this many pixels (a ``--focal`` given for the source is scaled
+            with them, a ``camera.json`` rescaled); None keeps the source's size.
     """
 
     frames: int = 120
@@ -152,6 +155,11 @@ class InputSettings:
     perception: str = "auto"
     poses: str = "fit"
     perception_settings: PerceptionSettings = field(default_factory=PerceptionSettings)
+    max_side: int | None = 1280
+
+    def __post_init__(self) -> None:
+        if self.max_side is not None and not 256 <= self.max_side <= 4096:
+            raise PipelineError(f"--max-side must lie in [256, 4096] pixels, got {self.max_side}")
 
 
 @dataclass(frozen=True)
@@ -209,8 +217,14 @@ def load_inputs(path: str | Path, settings: InputSettings) -> Inputs:
         raise PipelineError(
             "--perception ground-truth needs a monoavatar synth or People-Snapshot folder"
         )
-    frames = read_frames(path, selection)
-    camera = resolve_camera(frames.width, frames.height, focal_px=settings.focal,
+    frames = read_frames(path, selection, max_side=settings.max_side)
+    if frames.source_size is not None:
+        w, h = frames.source_size
+        warnings.warn(f"{path}: frames of {w}x{h} are reconstructed at {frames.width}x"
+                      f"{frames.height} (--max-side {settings.max_side}; the texture and the "
+                      "fit need no more)", InputWarning, stacklevel=2)  # fmt: skip
+    focal = None if settings.focal is None else settings.focal * frames.scale
+    camera = resolve_camera(frames.width, frames.height, focal_px=focal,
                             camera_path=settings.camera)  # fmt: skip
     obs = perceive(frames, camera, settings.perception_settings)
     kind = "images" if path.is_dir() else ("image" if len(frames) == 1 else "video")
