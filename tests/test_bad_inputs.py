@@ -82,3 +82,18 @@ def test_reconstruct_refuses_bad_input(case: str, tmp_path: Path,
     assert "Traceback" not in err
     assert re.search(message, err), err
     assert not out.exists()
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["--size", "100000", "100000"], r"at most 4096 pixels"),
+    (["--frames", "1000000"], r"at most 10000"),
+    (["--texture-size", "100000"], r"\[16, 8192\]"),
+])  # fmt: skip
+def test_synth_refuses_sizes_beyond_any_use(
+    args: list[str], message: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "scene"
+    assert main(["synth", "turnaround", "-o", str(out), *args]) == 2
+    err = capsys.readouterr().err
+    assert re.search(message, err) and "Traceback" not in err, err
+    assert not out.exists()

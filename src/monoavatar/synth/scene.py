@@ -72,6 +72,13 @@ class SynthConfig:
             raise SynthError(f"frames must be at least 1, got {self.frames}")
         if self.width < 16 or self.height < 16 or self.width % 2 or self.height % 2:
             raise SynthError(f"size must be even and at least 16, got {self.width}x{self.height}")
+        if max(self.width, self.height) > 4096:
+            raise SynthError(f"size must be at most 4096 pixels a side, got "
+                             f"{self.width}x{self.height}")  # fmt: skip
+        if self.frames > 10_000:
+            raise SynthError(f"frames must be at most 10000, got {self.frames}")
+        if not 16 <= self.texture_size <= 8192:
+            raise SynthError(f"texture size must lie in [16, 8192], got {self.texture_size}")
         if self.clothing is not None and self.clothing not in CLOTHING:
             raise SynthError(f"unknown clothing {self.clothing!r}; choose from {CLOTHING}")
         if self.noise not in NOISE_LEVELS:
