@@ -97,3 +97,17 @@ def test_synth_refuses_sizes_beyond_any_use(
     err = capsys.readouterr().err
     assert re.search(message, err) and "Traceback" not in err, err
     assert not out.exists()
+
+
+def test_warnings_are_one_line_without_source(tmp_path: Path,
+                                              capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    # a frame that cannot be decoded is skipped with a warning; the run then fails for want of
+    # a person, but the warning must read as one line from us, not as Python source
+    from tests.io.test_video import _corrupt_packet
+
+    video = _corrupt_packet(write_video(tmp_path / "c.mp4", n=12), 5)
+    main(["reconstruct", str(video), "-o", str(tmp_path / "o"), "--quiet", "--frames", "12"])
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if "skipped 1 frame" in line]
+    assert lines and lines[0].startswith("monoavatar reconstruct: warning: "), err
+    assert "warnings.warn(" not in err and "stacklevel" not in err

@@ -12,13 +12,15 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 from collections.abc import Callable
 from dataclasses import MISSING, fields, replace
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from monoavatar import __version__
-from monoavatar.core.errors import MonoavatarError
+from monoavatar.core.errors import InputWarning, MonoavatarError
 
 if TYPE_CHECKING:
     from monoavatar.body import BodyModel
@@ -818,6 +820,15 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     return parser
 
 
+def _show_warning(verb: str, message: Warning | str, category: type[Warning], filename: str,
+                  lineno: int, file: Any = None, line: str | None = None) -> None:  # fmt: skip
+    """``warnings.showwarning`` for the CLI: ``monoavatar VERB: warning: MESSAGE`` for ours,
+    the category named for other libraries' (no source line either way)."""
+    ours = "monoavatar" in filename or issubclass(category, InputWarning)
+    label = "warning" if ours else f"warning from {Path(filename).name} ({category.__name__})"
+    print(f"monoavatar {verb}: {label}: {message}", file=file or sys.stderr)
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     verb = next((a for a in argv if not a.startswith("-")), "")
@@ -827,7 +838,9 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 0
     try:
-        return int(args.run(args))
+        with warnings.catch_warnings():  # one line per warning, not a line of our source
+            warnings.showwarning = partial(_show_warning, args.command)
+            return int(args.run(args))
     except MonoavatarError as exc:
         print(f"monoavatar {args.command}: error: {exc}", file=sys.stderr)
         return 2

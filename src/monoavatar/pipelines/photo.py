@@ -41,6 +41,7 @@ from monoavatar.pipelines.stages import (
     InputSettings,
     PipelineError,
     StageTimer,
+    kept_warnings,
     load_inputs,
     machine,
     output_folder,
@@ -308,8 +309,7 @@ def _photo(input_path: str | Path, out: Path, config: PhotoConfig) -> PhotoResul
             yield
         bar.update()
 
-    with warnings.catch_warnings(record=True) as records:
-        warnings.simplefilter("always")
+    with kept_warnings() as records:  # kept for the report, shown however the run ends
         with stage("perception"):
             inputs = _read(input_path, config)
         obs = inputs.observations
@@ -336,10 +336,7 @@ def _photo(input_path: str | Path, out: Path, config: PhotoConfig) -> PhotoResul
             fine, offsets = surface(body, network, track.shape, maps)
         with stage("texture"):
             texture, sh = photo_texture(body, inputs, track, offsets, config.texture_size)
-    caught = []
-    for record in records:
-        caught.append(f"{record.category.__name__}: {record.message}")
-        warnings.warn_explicit(record.message, record.category, record.filename, record.lineno)
+    caught = [f"{record.category.__name__}: {record.message}" for record in records]
     with stage("export"):
         files, report = _export(out, input_path, body, inputs, track, network, maps, colour,
                                 visible, fine, offsets, texture, sh, config, caught)  # fmt: skip

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import resource
 import time
-import warnings
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -45,6 +44,7 @@ from monoavatar.pipelines.stages import (
     PipelineError,
     StageTimer,
     flow_stage,
+    kept_warnings,
     load_inputs,
     machine,
     output_folder,
@@ -264,8 +264,7 @@ def _reconstruct(input_path: str | Path, out: Path, config: ReconstructConfig
 
     timer = StageTimer()
     start = time.perf_counter()
-    with warnings.catch_warnings(record=True) as records:
-        warnings.simplefilter("always")
+    with kept_warnings() as records:  # kept for the report, shown however the run ends
         with timer("perception"):
             inputs = load_inputs(input_path, config.input)
         if inputs.kind == "image":
@@ -274,10 +273,7 @@ def _reconstruct(input_path: str | Path, out: Path, config: ReconstructConfig
                                 f"'monoavatar photo {input_path} -o OUT'")  # fmt: skip
         body = load_body_model(config.body_model)
         track, shape, texture, sh = fit_avatar(body, inputs, config, timer)
-    caught = []
-    for record in records:
-        caught.append(f"{record.category.__name__}: {record.message}")
-        warnings.warn_explicit(record.message, record.category, record.filename, record.lineno)
+    caught = [f"{record.category.__name__}: {record.message}" for record in records]
     timings = timer.seconds
     report = _report(input_path, body, inputs, track, shape, texture, config, caught,
                      dict(timings))  # fmt: skip

@@ -53,6 +53,7 @@ __all__ = [
     "PipelineError",
     "StageTimer",
     "flow_stage",
+    "kept_warnings",
     "load_inputs",
     "pose_stage",
     "posed_avatar",
@@ -123,6 +124,21 @@ def machine() -> dict[str, object]:
     return {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
             "torch_threads": torch.get_num_threads(), "python": platform.python_version(),
             "torch": torch.__version__}  # fmt: skip
+
+
+@contextmanager
+def kept_warnings() -> Iterator[list[warnings.WarningMessage]]:
+    """Record every warning raised in the block (the list it yields, for a report) and show
+    them all once the block ends, whether it succeeded or failed."""
+    records: list[warnings.WarningMessage] = []
+    try:
+        with warnings.catch_warnings(record=True) as got:
+            warnings.simplefilter("always")
+            records = got if got is not None else records
+            yield records
+    finally:
+        for r in records:
+            warnings.warn_explicit(r.message, r.category, r.filename, r.lineno)
 
 
 # -- inputs and perception --------------------------------------------------------------------

@@ -40,6 +40,7 @@ from monoavatar.pipelines.stages import (
     InputSettings,
     PipelineError,
     StageTimer,
+    kept_warnings,
     load_inputs,
 )
 from monoavatar.render import rasterize, render_normals
@@ -131,8 +132,7 @@ def track(input_path: str | Path, out_dir: str | Path, config: TrackConfig | Non
     _check_output(out_dir)
     start = time.perf_counter()
     timer = StageTimer()
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
+    with kept_warnings() as caught:  # kept for the report, shown however the run ends
         with timer("inputs"):
             body, avatar = _body_and_avatar(config)
             inputs = load_inputs(input_path, config.input)
@@ -155,8 +155,6 @@ def track(input_path: str | Path, out_dir: str | Path, config: TrackConfig | Non
         with timer("export"):
             files, report = _export(body, inputs, motion, avatar, out_dir, fps, config, timer,
                                     start, caught)  # fmt: skip
-    for w in caught:
-        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     return TrackResult(out_dir, motion, files, report)
 
 
