@@ -99,8 +99,9 @@ def test_synth_refuses_sizes_beyond_any_use(
     assert not out.exists()
 
 
-def test_warnings_are_one_line_without_source(tmp_path: Path,
-                                              capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+def test_warnings_are_one_line_without_source(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     # a frame that cannot be decoded is skipped with a warning; the run then fails for want of
     # a person, but the warning must read as one line from us, not as Python source
     from tests.io.test_video import _corrupt_packet

@@ -156,7 +156,24 @@ def test_missing_and_inconsistent_files(tmp_path: Path) -> None:
     folder = _write_sequence(tmp_path / "c")
     with h5py.File(folder / "masks.hdf5", "w") as fh:
         fh.create_dataset("masks", data=np.zeros((N, H, W + 2), np.uint8))
-    with pytest.raises(InputFormatError, match=r"masks are 66x48, subject\.mp4 frames are 64x48"):
+    with pytest.raises(InputFormatError,
+                       match=r"masks have shape \(8, 48, 66\); expected \(N, 48, 64\)"):
+        read_people_snapshot(folder)
+
+    # a colour axis: named as such; a single-channel axis: accepted
+    folder = _write_sequence(tmp_path / "rgb")
+    with h5py.File(folder / "masks.hdf5", "w") as fh:
+        fh.create_dataset("masks", data=np.stack([np.stack([_mask(k)] * 3, -1) for k in range(N)]))
+    with pytest.raises(InputFormatError, match=r"\(8, 48, 64, 3\).*colour axis"):
+        read_people_snapshot(folder)
+    with h5py.File(folder / "masks.hdf5", "w") as fh:
+        fh.create_dataset("masks", data=np.stack([_mask(k)[..., None] for k in range(N)]))
+    assert read_people_snapshot(folder).precomputed.masks.shape == (N, H, W)
+
+    folder = _write_sequence(tmp_path / "nan")
+    with h5py.File(folder / "masks.hdf5", "w") as fh:
+        fh.create_dataset("masks", data=np.full((N, H, W), np.nan, np.float32))
+    with pytest.raises(InputFormatError, match=r"masks hold NaN"):
         read_people_snapshot(folder)
 
     folder = _write_sequence(tmp_path / "d")

@@ -206,12 +206,18 @@ def read_people_snapshot(
             InputWarning,
             stacklevel=2,
         )
+    if masks.ndim == 4 and masks.shape[3] == 1:  # a trailing channel axis of one
+        masks = masks[..., 0]
     if masks.shape[1:] != (frames.height, frames.width):
         raise InputFormatError(
             folder / "masks.hdf5",
-            f"masks are {masks.shape[2]}x{masks.shape[1]}, {video.name} frames are "
-            f"{frames.width}x{frames.height}",
-        )
+            f"masks have shape {tuple(masks.shape)}; expected (N, {frames.height}, "
+            f"{frames.width}), one {frames.width}x{frames.height} mask per frame of "
+            f"{video.name}" + (" (the masks have a colour axis: store one channel)"
+                               if masks.ndim == 4 else ""),
+        )  # fmt: skip
+    if np.issubdtype(masks.dtype, np.floating) and not np.isfinite(masks).all():
+        raise InputFormatError(folder / "masks.hdf5", "masks hold NaN or infinite values")
     masks = masks > 0
 
     keypoints = None
