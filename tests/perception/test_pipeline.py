@@ -154,6 +154,20 @@ def test_frames_without_a_person_are_listed(
     assert np.all(obs.keypoints[[1, 3]] == 0) and np.isnan(obs.face[[1, 3]]).all()
 
 
+def test_too_few_frames_with_a_small_person_say_it_is_small(
+    fakes: tuple[FakePose, FakeSegmenter, FakeFace],
+) -> None:
+    pose, _, _ = fakes
+    images = np.full((4, 64, 64, 3), 20, np.uint8)
+    images[0, 30:40, 30:36] = 220  # a distant person, 10 of 64 rows tall, in one frame
+    with pytest.raises(NoPersonError, match=r"spans only 16 % of the image height.*film closer"):
+        perceive(Frames.from_images(images), detectors=Detectors(pose=pose))
+    with pytest.raises(NoPersonError) as e:  # a person of ordinary size: no such hint
+        ordinary = Frames.from_images(blob_frames(4, empty=(0, 1, 2)))
+        perceive(ordinary, detectors=Detectors(pose=pose))
+    assert "image height" not in str(e.value)
+
+
 def test_too_few_frames_with_a_person_stop(
     fakes: tuple[FakePose, FakeSegmenter, FakeFace],
 ) -> None:

@@ -18,13 +18,15 @@ class NoPersonError(PerceptionError):
         required: how many were required.
     """
 
-    def __init__(self, source: str, frames: list[int], found: int, required: int) -> None:
+    def __init__(self, source: str, frames: list[int], found: int, required: int,
+                 hint: str = "") -> None:  # fmt: skip
         self.frames = list(frames)
         self.found = found
         self.required = required
         super().__init__(
             f"{source}: a person was found in only {found} of {found + len(frames)} frame(s), "
             f"at least {required} are needed; no person in frame(s) {format_indices(self.frames)}"
+            + (f". {hint}" if hint else "")
         )
 
 

@@ -483,13 +483,32 @@ def _flow(
     return flow
 
 
+SMALL_PERSON = 0.25
+"""A person spanning less of the image height than this is small for the detectors."""
+
+
+def _size_hint(obs: Observations) -> str:
+    """Why few frames show a person, when the frames that do show one small: a sentence, or
+    "" when the person found is not small (or none was found)."""
+    heights = []
+    for mask, none in zip(obs.masks, obs.no_person, strict=True):
+        rows = np.flatnonzero(mask.any(axis=1))
+        if not none and rows.size:
+            heights.append((rows[-1] - rows[0] + 1) / mask.shape[0])
+    if not heights or float(np.median(heights)) >= SMALL_PERSON:
+        return ""
+    return (f"Where a person was found it spans only {100 * float(np.median(heights)):.0f} % of "
+            "the image height (median): the detectors need a person filling about a third of "
+            "the frame or more; crop the video to the person or film closer")  # fmt: skip
+
+
 def _report(frames: Frames, obs: Observations, settings: PerceptionSettings) -> None:
     n = len(obs)
     missing = frames.indices[obs.no_person].tolist()
     found = n - len(missing)
     required = max(1, math.ceil(settings.min_person_fraction * n))
     if found < required:
-        raise NoPersonError(frames.source, missing, found, required)
+        raise NoPersonError(frames.source, missing, found, required, _size_hint(obs))
     if missing:
         warnings.warn(
             f"{frames.source}: no person found in {len(missing)} of {n} frame(s) "
