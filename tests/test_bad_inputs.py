@@ -84,6 +84,16 @@ def test_reconstruct_refuses_bad_input(case: str, tmp_path: Path,
     assert not out.exists()
 
 
+@pytest.mark.parametrize("verb", ["fit-poses", "fit-shape", "track"])
+def test_other_verbs_leave_no_folder_for_a_missing_input(
+    verb: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "out"
+    assert main([verb, str(tmp_path / "missing.mp4"), "-o", str(out)]) == 2
+    assert "missing.mp4: no such file" in capsys.readouterr().err
+    assert not out.exists()
+
+
 @pytest.mark.parametrize(("args", "message"), [
     (["--size", "100000", "100000"], r"at most 4096 pixels"),
     (["--frames", "1000000"], r"at most 10000"),

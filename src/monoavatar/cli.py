@@ -414,8 +414,14 @@ def _inputs_and_body(args: argparse.Namespace) -> tuple[ReconstructConfig, Input
 
     config = _config(args)
     config.validate()
-    args.output.mkdir(parents=True, exist_ok=True)
-    inputs = load_inputs(args.input, config.input)
+    existed = args.output.exists()
+    args.output.mkdir(parents=True, exist_ok=True)  # an unwritable output fails before the work
+    try:
+        inputs = load_inputs(args.input, config.input)
+    except BaseException:  # a rejected input leaves no empty folder behind
+        if not existed and args.output.is_dir() and not any(args.output.iterdir()):
+            args.output.rmdir()
+        raise
     return config, inputs, load_body_model(config.body_model)
 
 
