@@ -11,9 +11,11 @@ verb runs, so that ``monoavatar --help`` does not import the pipelines.
 from __future__ import annotations
 
 import argparse
+import errno
 import sys
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import MISSING, fields, replace
 from functools import partial
 from pathlib import Path
@@ -414,14 +416,8 @@ def _inputs_and_body(args: argparse.Namespace) -> tuple[ReconstructConfig, Input
 
     config = _config(args)
     config.validate()
-    existed = args.output.exists()
     args.output.mkdir(parents=True, exist_ok=True)  # an unwritable output fails before the work
-    try:
-        inputs = load_inputs(args.input, config.input)
-    except BaseException:  # a rejected input leaves no empty folder behind
-        if not existed and args.output.is_dir() and not any(args.output.iterdir()):
-            args.output.rmdir()
-        raise
+    inputs = load_inputs(args.input, config.input)
     return config, inputs, load_body_model(config.body_model)
 
 
@@ -835,6 +831,26 @@ def _show_warning(verb: str, message: Warning | str, category: type[Warning], fi
     print(f"monoavatar {verb}: {label}: {message}", file=file or sys.stderr)
 
 
+@contextmanager
+def _drop_if_empty(folder: Path | None) -> Iterator[None]:
+    """Remove ``folder`` (one this run created) if the run fails and leaves it empty."""
+    try:
+        yield
+    except BaseException:
+        if folder is not None and folder.is_dir() and not any(folder.iterdir()):
+            folder.rmdir()
+        raise
+
+
+def _os_hint(exc: OSError) -> str:
+    """What to do about the operating system errors a user can fix."""
+    if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        return " (the disk is full: free some space or write the output elsewhere with -o)"
+    if exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
+        return " (permission denied: check the path, or write the output elsewhere with -o)"
+    return ""
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     verb = next((a for a in argv if not a.startswith("-")), "")
@@ -843,15 +859,17 @@ def main(argv: list[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return 0
+    output = getattr(args, "output", None)
+    created = isinstance(output, Path) and not output.exists()
     try:
-        with warnings.catch_warnings():  # one line per warning, not a line of our source
+        with warnings.catch_warnings(), _drop_if_empty(output if created else None):
             warnings.showwarning = partial(_show_warning, args.command)
             return int(args.run(args))
     except MonoavatarError as exc:
         print(f"monoavatar {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:  # a file that cannot be read or written
-        print(f"monoavatar {args.command}: error: {exc}", file=sys.stderr)
+        print(f"monoavatar {args.command}: error: {exc}{_os_hint(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)

@@ -13,7 +13,8 @@ from pathlib import Path
 @contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """Yield a temporary path beside ``path`` (same folder and suffix, the usual permissions of a
-    new file); rename it onto ``path`` if the block succeeds, delete it otherwise."""
+    new file); rename it onto ``path`` if the block succeeds, delete it otherwise. An
+    ``OSError`` of the block (a full disk) is raised naming ``path``."""
     path = Path(path)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=path.suffix)
     os.close(fd)
@@ -23,6 +24,10 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     try:
         yield Path(tmp)
         os.replace(tmp, path)
+    except OSError as exc:
+        if exc.filename is None or exc.filename == tmp:  # name the file the user asked for
+            raise OSError(exc.errno, exc.strerror, str(path)) from exc
+        raise
     finally:
         Path(tmp).unlink(missing_ok=True)
 
@@ -37,6 +42,19 @@ def atomic_write_bytes(path: str | Path, payload: bytes, *, fsync: bool = True) 
         if fsync:
             fh.flush()
             os.fsync(fh.fileno())
+
+
+def atomic_write_npz(path: str | Path, **arrays: object) -> None:
+    """``np.savez`` to ``path`` atomically. The archive is built in memory first, so a full
+    disk fails in one clean ``OSError`` (a ``ZipFile`` half-written to a file that failed leaves
+    a second error behind when it is collected)."""
+    import io
+
+    import numpy as np
+
+    buffer = io.BytesIO()
+    np.savez(buffer, **arrays)  # type: ignore[arg-type]
+    atomic_write_bytes(path, buffer.getvalue(), fsync=False)
 
 
 def atomic_write_text(path: str | Path, text: str) -> None:

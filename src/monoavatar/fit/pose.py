@@ -91,30 +91,29 @@ class PoseTrack:
     def save(self, path: str | Path) -> None:
         """Write a ``.npz`` (keys as the attributes; the camera as ``camera_K``, ``camera_R``,
         ``camera_t`` (metres) and ``image_size`` (width, height)), atomically."""
-        from monoavatar.core.files import atomic_path
+        from monoavatar.core.files import atomic_write_npz
 
-        with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-            np.savez(
-                fh,
-                format=np.array(FORMAT),
-                body_model=np.array(self.body_model),
-                shape=self.shape,
-                poses=self.poses,
-                translations=self.translations,
-                camera_K=self.camera.K,
-                camera_R=self.camera.R,
-                camera_t=self.camera.t,
-                image_size=np.array([self.camera.width, self.camera.height]),
-                frame_indices=self.frame_indices,
-                keypoint_error=self.keypoint_error,
-                silhouette_iou=self.silhouette_iou,
-                energy=self.energy,
-                failed=self.failed,
-                height=np.array(self.height),
-                scale_known=np.array(self.scale_known),
-                seconds=np.array(self.seconds),
-                timings=np.array(json.dumps(self.timings)),
-            )
+        atomic_write_npz(
+            path,
+            format=np.array(FORMAT),
+            body_model=np.array(self.body_model),
+            shape=self.shape,
+            poses=self.poses,
+            translations=self.translations,
+            camera_K=self.camera.K,
+            camera_R=self.camera.R,
+            camera_t=self.camera.t,
+            image_size=np.array([self.camera.width, self.camera.height]),
+            frame_indices=self.frame_indices,
+            keypoint_error=self.keypoint_error,
+            silhouette_iou=self.silhouette_iou,
+            energy=self.energy,
+            failed=self.failed,
+            height=np.array(self.height),
+            scale_known=np.array(self.scale_known),
+            seconds=np.array(self.seconds),
+            timings=np.array(json.dumps(self.timings)),
+        )
 
     @staticmethod
     def load(path: str | Path) -> PoseTrack:

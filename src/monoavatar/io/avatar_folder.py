@@ -43,7 +43,7 @@ from PIL import Image
 
 from monoavatar.core.camera import PinholeCamera
 from monoavatar.core.errors import InputFormatError, InputNotFoundError
-from monoavatar.core.files import atomic_path, atomic_write_text
+from monoavatar.core.files import atomic_write_npz, atomic_write_text
 from monoavatar.io.export_mesh import read_obj, write_obj
 
 __all__ = [
@@ -131,8 +131,7 @@ class AvatarParams:
         )  # fmt: skip
         if self.lighting_sh is not None:
             arrays["lighting_sh"] = self.lighting_sh
-        with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-            np.savez(fh, **arrays)
+        atomic_write_npz(path, **arrays)
 
     @classmethod
     def load(cls, path: str | Path) -> AvatarParams:
@@ -470,9 +469,8 @@ class ShapeFile:
     translations: np.ndarray
 
     def save(self, path: str | Path) -> None:
-        with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-            np.savez(fh, format=np.array(FORMAT), **{f.name: getattr(self, f.name)
-                                                     for f in fields(self)})  # fmt: skip
+        atomic_write_npz(path, format=np.array(FORMAT),
+                         **{f.name: getattr(self, f.name) for f in fields(self)})
 
     @classmethod
     def load(cls, path: str | Path) -> ShapeFile:

@@ -323,7 +323,7 @@ FORMAT = "monoavatar-photo-data-1"
 
 def write_shard(path: Path, samples: list[PhotoSample]) -> None:
     """Samples as one npz (input float16, target float16, weight uint8)."""
-    from monoavatar.core.files import atomic_path
+    from monoavatar.core.files import atomic_write_npz
 
     arrays = {
         "format": np.array(FORMAT),
@@ -335,8 +335,7 @@ def write_shard(path: Path, samples: list[PhotoSample]) -> None:
         "fill": np.array([s.fill for s in samples]),
         "visible": np.array([s.visible_fraction for s in samples]),
     }
-    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-        np.savez(fh, **arrays)
+    atomic_write_npz(path, **arrays)
 
 
 class PhotoDataset(torch.utils.data.Dataset[dict[str, Tensor]]):

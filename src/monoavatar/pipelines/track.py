@@ -25,7 +25,7 @@ import torch
 from monoavatar.body import BodyModel, load_body_model, load_body_model_for
 from monoavatar.body.motion import turn_upright
 from monoavatar.core.errors import InputError
-from monoavatar.core.files import staged_folder
+from monoavatar.core.files import atomic_write_npz, staged_folder
 from monoavatar.eval.joints import tracking_errors
 from monoavatar.fit.pose import world_up
 from monoavatar.fit.tracking import MotionTrack, TrackSettings, track_motion
@@ -265,7 +265,7 @@ def _export(body: BodyModel, inputs: Inputs, motion: MotionTrack, avatar: Avatar
                                   **tracking_errors(joints_cam[:, sel], truth[:, sel])}
     with staged_folder(out_dir) as staging:
         (staging / "preview").mkdir()
-        np.savez(
+        atomic_write_npz(
             staging / "motion.npz",
             poses=motion.poses, translations=motion.translations, shape=motion.shape,
             energy=motion.energy, failed=motion.failed, reinitialised=motion.reinitialised,

@@ -35,7 +35,7 @@ from monoavatar.body import MEDIAPIPE_LANDMARKS, BodyModel, lbs, load_body_model
 from monoavatar.body.motion import free_motion, gait, standing_pose, turnaround
 from monoavatar.core.camera import PinholeCamera
 from monoavatar.core.errors import MonoavatarError
-from monoavatar.core.files import staged_folder
+from monoavatar.core.files import atomic_write_npz, staged_folder
 from monoavatar.io.export_mesh import write_mp4, write_obj, write_ply
 from monoavatar.render import rasterize, render_textured, sample_sh_lighting
 from monoavatar.synth.options import BACKGROUNDS, CLOTHING, KINDS, NOISE_LEVELS
@@ -317,13 +317,13 @@ def _generate_into(
     observed = kp.copy()
     observed[..., :2] += frame_rng.normal(0, noise["keypoint_jitter"], observed[..., :2].shape)
     observed[kp[..., 2] == 0] = 0.0
-    np.savez(work / "keypoints.npz", keypoints=kp, keypoints_3d=np.stack(keypoints_3d),
-             observed=observed)  # fmt: skip
+    atomic_write_npz(work / "keypoints.npz", keypoints=kp, keypoints_3d=np.stack(keypoints_3d),
+                     observed=observed)  # fmt: skip
     camera.save_json(work / "camera.json")
     if config.kind != "photo":
         write_mp4(work / "video.mp4", images, config.fps)
     Image.fromarray(contact_sheet(images)).save(work / "preview" / "contact_sheet.png")
-    np.savez(
+    atomic_write_npz(
         work / "gt" / "params.npz",
         body_model=np.array(body.identity),
         shapes=np.stack([s.shape[0].numpy() for s in subjects]),
