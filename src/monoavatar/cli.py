@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import errno
+import os
 import sys
 import warnings
 from collections.abc import Callable, Iterator
@@ -648,6 +649,38 @@ def _run_transfer(args: argparse.Namespace) -> int:
     return 0
 
 
+def _add_measure(p: argparse.ArgumentParser) -> None:
+    p.description = ("Tailor's measurements of an avatar folder (reconstruct, photo): height; "
+                     "chest, waist, hip, neck, upper-arm, thigh and calf girths; shoulder "
+                     "width, arm length, inseam; each on the body under the clothes and on the "
+                     "clothed surface. Writes FOLDER/measurements.json (metres, or fractions of "
+                     "the height for an avatar made without --height) and "
+                     "FOLDER/preview/measurements.png.")  # fmt: skip
+    p.add_argument("avatar", type=Path, help="an avatar folder")
+    p.add_argument("--json", type=Path, default=None, metavar="FILE",
+                   help="write the JSON here instead (default: FOLDER/measurements.json)")
+    p.add_argument("--no-picture", action="store_true", help="skip preview/measurements.png")
+    p.set_defaults(run=_run_measure)
+
+
+def _run_measure(args: argparse.Namespace) -> int:
+    from monoavatar.pipelines.measure import measure_folder
+
+    result = measure_folder(args.avatar, args.json, picture=not args.no_picture)
+    metric = result.scale_known
+    unit = "cm" if metric else "% of height"
+    print(f"{'measurement':<16}{'body':>9}{'clothed':>9}  ({unit})")
+    for name, vals in result.values.items():
+        cells = "".join(f"{'-' if v is None else f'{100 * v:.1f}':>9}"
+                        for v in (vals["body"], vals["clothed"]))  # fmt: skip
+        print(f"{name:<16}{cells}")
+    if not metric:
+        print("the avatar's scale is unknown (made without --height): values are fractions of "
+              "the body's height")
+    print("wrote " + " and ".join(str(p) for p in result.files.values()))
+    return 0
+
+
 # -- animate, demo, bench ---------------------------------------------------------------------
 
 
@@ -794,6 +827,8 @@ VERBS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None]]] = {
     "train": ("train a learned part (photo) on data made by synth", _add_train),
     "transfer": ("dress the person of one avatar folder in another's clothes (Sec. E.6.5)",
                  _add_transfer),
+    "measure": ("body measurements of an avatar (girths, lengths), under and over the clothes",
+                _add_measure),
     "animate": ("re-pose an avatar with a built-in motion or another video's poses "
                 "(animated glb)", _add_animate),
     "bench": ("measure accuracy and speed on a fixed synthetic suite, beside the dissertation",
@@ -868,6 +903,9 @@ def main(argv: list[str] | None = None) -> int:
     except MonoavatarError as exc:
         print(f"monoavatar {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # the output piped into a program that stopped reading (head)
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     except OSError as exc:  # a file that cannot be read or written
         print(f"monoavatar {args.command}: error: {exc}{_os_hint(exc)}", file=sys.stderr)
         return 2
