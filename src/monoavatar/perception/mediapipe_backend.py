@@ -8,6 +8,11 @@ functions work on any image array. Temporal consistency is added afterwards by t
 
 from __future__ import annotations
 
+import os
+import sys
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import numpy as np
@@ -29,13 +34,38 @@ def check_image(image: np.ndarray) -> np.ndarray:
 
 
 def _mediapipe() -> Any:
-    import mediapipe  # slow import: only when a mediapipe detector is made
+    with native_stderr_hidden():
+        import mediapipe  # slow import: only when a mediapipe detector is made
 
     return mediapipe
 
 
+@contextmanager
+def native_stderr_hidden() -> Iterator[None]:
+    """Hide what is written to the process's stderr (file descriptor 2) inside the block: the
+    TensorFlow Lite and absl lines mediapipe's native code prints when a graph starts and first
+    runs ("Created TensorFlow Lite XNNPACK delegate", "All log messages before
+    absl::InitializeLog()", "Feedback manager ...") read like errors. What was hidden is shown
+    if the block raises."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as sink:
+        os.dup2(sink.fileno(), 2)
+        try:
+            yield
+        except BaseException:
+            os.dup2(saved, 2)
+            sink.seek(0)
+            sys.stderr.write(sink.read().decode("utf-8", "replace"))
+            raise
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+
+
 class _Closing:
     _solution: Any
+    _started: bool = False
 
     def close(self) -> None:
         """Release the mediapipe graph."""
@@ -52,6 +82,10 @@ class _Closing:
     def _run(self, image: np.ndarray) -> Any:
         if self._solution is None:
             raise RuntimeError(f"{type(self).__name__} is closed")
+        if not self._started:  # the native start-up lines come with the first frame
+            self._started = True
+            with native_stderr_hidden():
+                return self._solution.process(check_image(image))
         return self._solution.process(check_image(image))
 
 
@@ -67,12 +101,13 @@ class MediaPipePose(_Closing):
         mp = _mediapipe()
         self._segmentation = segmentation
         self._confidence = float(min_detection_confidence)
-        self._solution = mp.solutions.pose.Pose(
-            static_image_mode=True,
-            model_complexity=1,
-            enable_segmentation=segmentation,
-            min_detection_confidence=self._confidence,
-        )
+        with native_stderr_hidden():
+            self._solution = mp.solutions.pose.Pose(
+                static_image_mode=True,
+                model_complexity=1,
+                enable_segmentation=segmentation,
+                min_detection_confidence=self._confidence,
+            )
         self._name = (
             f"mediapipe-{mp.__version__}-pose-full-c{self._confidence:g}"
             f"{'-seg' if segmentation else ''}"
@@ -115,9 +150,10 @@ class MediaPipeSelfieSegmenter(_Closing):
 
     def __init__(self, landscape: bool = False) -> None:
         mp = _mediapipe()
-        self._solution = mp.solutions.selfie_segmentation.SelfieSegmentation(
-            model_selection=1 if landscape else 0
-        )
+        with native_stderr_hidden():
+            self._solution = mp.solutions.selfie_segmentation.SelfieSegmentation(
+                model_selection=1 if landscape else 0
+            )
         self._name = f"mediapipe-{mp.__version__}-selfie-{'landscape' if landscape else 'general'}"
 
     @property
@@ -144,12 +180,13 @@ class MediaPipeFaceMesh(_Closing):
 
     def __init__(self, max_faces: int = 4, min_detection_confidence: float = 0.5) -> None:
         mp = _mediapipe()
-        self._solution = mp.solutions.face_mesh.FaceMesh(
-            static_image_mode=True,
-            max_num_faces=int(max_faces),
-            refine_landmarks=False,
-            min_detection_confidence=float(min_detection_confidence),
-        )
+        with native_stderr_hidden():
+            self._solution = mp.solutions.face_mesh.FaceMesh(
+                static_image_mode=True,
+                max_num_faces=int(max_faces),
+                refine_landmarks=False,
+                min_detection_confidence=float(min_detection_confidence),
+            )
         self._name = (
             f"mediapipe-{mp.__version__}-facemesh-n{int(max_faces)}-c{min_detection_confidence:g}"
         )
