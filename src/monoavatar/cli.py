@@ -650,6 +650,8 @@ def _run_transfer(args: argparse.Namespace) -> int:
 
 
 def _add_measure(p: argparse.ArgumentParser) -> None:
+    from monoavatar.pipelines.measure import UNDER, MeasureConfig
+
     p.description = ("Tailor's measurements of an avatar folder (reconstruct, photo): height; "
                      "chest, waist, hip, neck, upper-arm, thigh and calf girths; shoulder "
                      "width, arm length, inseam; each on the body under the clothes and on the "
@@ -659,14 +661,19 @@ def _add_measure(p: argparse.ArgumentParser) -> None:
     p.add_argument("avatar", type=Path, help="an avatar folder")
     p.add_argument("--json", type=Path, default=None, metavar="FILE",
                    help="write the JSON here instead (default: FOLDER/measurements.json)")
+    _option(p, "--under", MeasureConfig, "under", choices=UNDER,
+            help="the body under the clothes: 'fit' re-fits the body model's shape to lie "
+            "inside the clothed surface, 'clamp' keeps the avatar's shape with its inward "
+            "offsets")  # fmt: skip
     p.add_argument("--no-picture", action="store_true", help="skip preview/measurements.png")
     p.set_defaults(run=_run_measure)
 
 
 def _run_measure(args: argparse.Namespace) -> int:
-    from monoavatar.pipelines.measure import measure_folder
+    from monoavatar.pipelines.measure import MeasureConfig, measure_folder
 
-    result = measure_folder(args.avatar, args.json, picture=not args.no_picture)
+    result = measure_folder(args.avatar, args.json,
+                            MeasureConfig(under=args.under, picture=not args.no_picture))
     metric = result.scale_known
     unit = "cm" if metric else "% of height"
     print(f"{'measurement':<16}{'body':>9}{'clothed':>9}  ({unit})")

@@ -57,3 +57,12 @@ def test_vertical_hits_of_a_lying_cylinder() -> None:
     np.testing.assert_allclose(hits, [c - np.sqrt(r**2 - z**2), c + np.sqrt(r**2 - z**2)],
                                atol=sag + 1e-9)  # fmt: skip
     assert len(vertical_hits(v, f, 0.7, 0.0)) == 0  # beyond its end
+
+
+def test_a_vertical_line_along_an_edge_is_a_hit_once() -> None:
+    """Two triangles sharing the edge x = 0 (a symmetric mesh's seam), tilted: the line
+    x = 0, z = 0.1 runs along their edge and meets the surface once, at the edge's height."""
+    v = np.array([[0.0, 0.0, 0.0], [0.0, 0.2, 0.3], [0.3, 0.5, 0.1], [-0.3, 0.5, 0.1]])
+    f = np.array([[0, 1, 2], [0, 3, 1]])
+    for x in (0.0, 1e-17, -1e-17):
+        np.testing.assert_allclose(vertical_hits(v, f, x, 0.1), [0.2 / 3])

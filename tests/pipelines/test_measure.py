@@ -15,7 +15,7 @@ from monoavatar.cli import main
 from monoavatar.core.geometry import vertex_normals
 from monoavatar.io.avatar_folder import AvatarFolder
 from monoavatar.measure import MEASUREMENTS
-from monoavatar.pipelines.measure import FORMAT, measure_folder
+from monoavatar.pipelines.measure import FORMAT, MeasureConfig, measure_folder
 from tests.avatar_folders import make_params, make_report
 
 CLOTHING = 0.01  # metres, along the normals
@@ -43,7 +43,9 @@ def folders(tmp_path_factory: pytest.TempPathFactory) -> dict[bool, Path]:
 
 
 def test_metric_folder(folders: dict[bool, Path]) -> None:
-    result = measure_folder(folders[True])
+    """With the body under the clothes as the avatar's own shape ('clamp': the offsets all point
+    out), the clothing's 1 cm shows as 2 pi cm on every girth."""
+    result = measure_folder(folders[True], config=MeasureConfig(under="clamp"))
     data = json.loads((folders[True] / "measurements.json").read_text())
     assert data["format"] == FORMAT and data["unit"] == "m" and data["scale_known"] is True
     assert [k for k in data if k in MEASUREMENTS] == list(MEASUREMENTS)
@@ -64,9 +66,10 @@ def test_metric_folder(folders: dict[bool, Path]) -> None:
 def test_folder_without_scale_reports_fractions_of_height(folders: dict[bool, Path],
                                                           tmp_path: Path) -> None:  # fmt: skip
     out = tmp_path / "m.json"
-    measure_folder(folders[False], out, picture=False)
+    measure_folder(folders[False], out, MeasureConfig(picture=False))
     data = json.loads(out.read_text())
-    metric = measure_folder(folders[True], tmp_path / "metric.json", picture=False).values
+    metric = measure_folder(folders[True], tmp_path / "metric.json",
+                            MeasureConfig(picture=False)).values
     assert data["unit"] == "fraction of height" and data["scale_known"] is False
     assert "height" in data["note"] and "--height" in data["note"]
     assert data["height"]["body"] == pytest.approx(1.0, abs=1e-4)
@@ -78,8 +81,12 @@ def test_folder_without_scale_reports_fractions_of_height(folders: dict[bool, Pa
 
 def test_cli(folders: dict[bool, Path], capsys: pytest.CaptureFixture[str],
              tmp_path: Path) -> None:  # fmt: skip
-    assert main(["measure", str(folders[True]), "--json", str(tmp_path / "x.json")]) == 0
+    assert main(["measure", str(folders[True]), "--json", str(tmp_path / "x.json"),
+                 "--no-picture"]) == 0
     out = capsys.readouterr().out
     assert "chest" in out and "(cm)" in out and str(tmp_path / "x.json") in out
     assert main(["measure", str(tmp_path / "nowhere")]) == 2
     assert "no such avatar folder" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_info:  # argparse refuses it
+        main(["measure", str(folders[True]), "--under", "guess"])
+    assert exit_info.value.code == 2 and "invalid choice" in capsys.readouterr().err

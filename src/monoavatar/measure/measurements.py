@@ -15,7 +15,8 @@ neck            girth ⟂ neck → head, half-way along it (neck and head)
 chest           largest torso girth, horizontal, heights spine3 + T·[−0.15, +0.05]
 waist           smallest torso girth, horizontal, heights [spine1 + 0.05 T, spine2 + 0.1 T]
 hip             largest girth of torso and both legs, horizontal, heights
-                [hip joints − 0.25·thigh bone, spine1]
+                [hip joints − 0.1·thigh bone, spine1] (above the crotch: lower, the tape
+                would span the parted legs of the A-pose)
 upper_arm       girth ⟂ shoulder → elbow, half-way (the arm alone; mean of both sides)
 thigh           largest girth ⟂ hip → knee over 25–50 % of the bone (one leg; mean of both)
 calf            largest girth ⟂ knee → ankle over 20–50 % of the bone (one leg; mean of both)
@@ -75,7 +76,7 @@ class MeasureSettings:
     samples: int = 15
     chest_band: tuple[float, float] = (-0.15, 0.05)
     waist_band: tuple[float, float] = (0.05, 0.10)
-    hip_band: float = 0.25
+    hip_band: float = 0.10
     thigh_band: tuple[float, float] = (0.25, 0.50)
     calf_band: tuple[float, float] = (0.20, 0.50)
 

@@ -97,8 +97,8 @@ def girth(section: Section) -> tuple[float, np.ndarray]:
 
 
 def vertical_hits(vertices: np.ndarray, faces: np.ndarray, x: float, z: float) -> np.ndarray:
-    """Heights (K,) sorted, where the vertical line (x, ·, z) of a Y-up mesh crosses its
-    triangles (barycentric test in the XZ plane; a line through an edge may count twice)."""
+    """Heights (K,) sorted and distinct, where the vertical line (x, ·, z) of a Y-up mesh
+    crosses its triangles (barycentric test in the XZ plane, edges included)."""
     tri = vertices[faces]  # (F, 3, 3)
     p = np.array([x, z])
     a, b, c = tri[:, 0, [0, 2]], tri[:, 1, [0, 2]], tri[:, 2, [0, 2]]
@@ -108,7 +108,8 @@ def vertical_hits(vertices: np.ndarray, faces: np.ndarray, x: float, z: float) -
     den = np.where(ok, den, 1.0)
     u = (v2[:, 0] * v1[:, 1] - v1[:, 0] * v2[:, 1]) / den
     w = (v0[:, 0] * v2[:, 1] - v2[:, 0] * v0[:, 1]) / den
-    inside = ok & (u >= 0) & (w >= 0) & (u + w <= 1)
-    y = tri[inside, 0, 1] + u[inside] * (tri[inside, 1, 1] - tri[inside, 0, 1]) \
-        + w[inside] * (tri[inside, 2, 1] - tri[inside, 0, 1])
-    return np.sort(y)
+    eps = 1e-9  # a line along an edge (a symmetric mesh's seam) meets both of its triangles
+    inside = ok & (u >= -eps) & (w >= -eps) & (u + w <= 1 + eps)
+    y = np.sort(tri[inside, 0, 1] + u[inside] * (tri[inside, 1, 1] - tri[inside, 0, 1])
+                + w[inside] * (tri[inside, 2, 1] - tri[inside, 0, 1]))  # fmt: skip
+    return y[np.concatenate([[True], np.diff(y) > 1e-7])] if len(y) else y

@@ -1,7 +1,7 @@
 """``monoavatar measure``: tailor's measurements of an avatar folder, on the body under the
-clothes (the body model with the fitted shape and only the offsets that point inwards,
-:func:`~monoavatar.measure.body_under_clothes`) and on the clothed surface (``avatar.obj``),
-both in the canonical rest pose; a JSON file and a picture of where each was taken.
+clothes (the body model's shape re-fitted to lie just inside the clothed surface,
+:mod:`monoavatar.measure.under`) and on the clothed surface (``avatar.obj``), both in the
+canonical rest pose; a JSON file and a picture of where each was taken.
 
 JSON (``measurements.json``): ``format``, ``unit`` (``"m"``, or ``"fraction of height"`` for an
 avatar whose scale is unknown: every value divided by the body's height), ``scale_known``,
@@ -35,9 +35,12 @@ from monoavatar.measure import (
     transfer_parts,
     vertex_parts,
 )
+from monoavatar.measure.under import UnderSettings, fit_body_under_clothes
+from monoavatar.pipelines.stages import PipelineError
 from monoavatar.render import rasterize, render_normals
 
-__all__ = ["FORMAT", "MeasureResult", "measure_folder", "measurements_picture"]
+__all__ = ["FORMAT", "UNDER", "MeasureConfig", "MeasureResult", "measure_folder",
+           "measurements_picture"]
 
 FORMAT = "monoavatar-measurements-1"
 
@@ -77,31 +80,64 @@ class MeasureResult:
                 "note": note, **self.values}  # fmt: skip
 
 
+UNDER = ("fit", "clamp")
+
+
+@dataclass(frozen=True)
+class MeasureConfig:
+    """``monoavatar measure``'s settings.
+
+    Attributes:
+        under: how the body under the clothes is found: ``"fit"``, the body model's shape
+            re-fitted to lie inside the clothed surface (:mod:`monoavatar.measure.under`), or
+            ``"clamp"``, the avatar's own shape with only its inward offsets.
+        fit: the re-fit's settings.
+        definitions: where the measurements are taken.
+        picture: write ``preview/measurements.png``.
+    """
+
+    under: str = "fit"
+    fit: UnderSettings = field(default_factory=UnderSettings)
+    definitions: MeasureSettings = field(default_factory=MeasureSettings)
+    picture: bool = True
+
+    def validate(self) -> None:
+        if self.under not in UNDER:
+            raise PipelineError(f"--under must be one of {UNDER}, got {self.under!r}")
+
+
 def measure_folder(folder: str | Path, json_path: str | Path | None = None,
-                   settings: MeasureSettings | None = None,
-                   picture: bool = True) -> MeasureResult:  # fmt: skip
+                   config: MeasureConfig | None = None) -> MeasureResult:  # fmt: skip
     """Measure the avatar of ``folder`` and write ``json_path`` (default
-    ``folder/measurements.json``) and, with ``picture``, ``folder/preview/measurements.png``.
+    ``folder/measurements.json``) and, with ``config.picture``,
+    ``folder/preview/measurements.png``.
 
     Raises:
         InputNotFoundError, AvatarFolderError: not an avatar folder.
         InputFormatError: an avatar whose body model has not the joints measurements need.
     """
+    config = config or MeasureConfig()
+    config.validate()
     folder = Path(folder)
     avatar = AvatarFolder.load(folder)
     params = avatar.params
     body = load_body_model_for(params.body_model)
-    with torch.no_grad():
-        rest, joints = body.rest_shape(torch.as_tensor(params.shape, dtype=body.dtype)[None])
-    rest_v, rest_j = rest[0].double().numpy(), joints[0].double().numpy()
-    under = body_under_clothes(rest_v, vertex_normals(rest_v, body.faces).numpy(),
-                               np.asarray(params.offsets, float))  # fmt: skip
     try:
         parts = vertex_parts(body.skin_weights.double().numpy(), body.joint_names)
     except ValueError as exc:
         raise InputFormatError(folder / "params.npz", str(exc)) from exc
+    with torch.no_grad():
+        rest, joints = body.rest_shape(torch.as_tensor(params.shape, dtype=body.dtype)[None])
+    rest_v, rest_j = rest[0].double().numpy(), joints[0].double().numpy()
+    offsets = np.asarray(params.offsets, float)
+    if config.under == "fit":
+        _, under, under_j = fit_body_under_clothes(body, params.shape, offsets, config.fit)
+    else:
+        under = body_under_clothes(rest_v, vertex_normals(rest_v, body.faces).numpy(), offsets)
+        under_j = rest_j
+    settings = config.definitions
     measured = {
-        "body": measure_mesh(under, body.faces.numpy(), parts, rest_j, body.joint_names,
+        "body": measure_mesh(under, body.faces.numpy(), parts, under_j, body.joint_names,
                              settings),
         "clothed": measure_mesh(avatar.vertices, avatar.faces,
                                 transfer_parts(rest_v, parts, avatar.vertices), rest_j,
@@ -117,7 +153,7 @@ def measure_folder(folder: str | Path, json_path: str | Path | None = None,
     out.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out, json.dumps(result.to_json(), indent=2) + "\n")
     result.files["json"] = out
-    if picture:
+    if config.picture:
         image = measurements_picture(avatar.vertices, avatar.faces, measured["clothed"],
                                      result)  # fmt: skip
         path = folder / "preview" / "measurements.png"
@@ -150,7 +186,7 @@ def measurements_picture(vertices: np.ndarray, faces: np.ndarray,
         shade = np.clip(-normals[..., 2], 0, 1) * 0.55 + 0.35
         image = np.where(frags.mask.numpy()[..., None], shade[..., None], 0.97)
         canvas = np.ascontiguousarray((np.repeat(image, 3, axis=2) * 255).astype(np.uint8))
-        for name, m in measured.items():
+        for name, m in reversed(measured.items()):  # torso girths over the limbs
             for line in m.drawing:
                 if len(line) < 2 or not np.isfinite(line).all():
                     continue
