@@ -720,7 +720,7 @@ def _add_demo(p: argparse.ArgumentParser) -> None:
                      "video with mediapipe perception, and print its surface error against "
                      "the ground truth.")  # fmt: skip
     p.add_argument("-o", "--output", required=True, type=Path, help="output folder")
-    p.add_argument("--frames", type=int, default=60, help="frames of the video (default 60)")
+    p.add_argument("--frames", type=int, default=40, help="frames of the video (default 40)")
     p.add_argument("--seed", type=int, default=3, help="subject and scene seed (default 3)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(run=_run_demo)

@@ -89,7 +89,7 @@ def align_icp(
     init: SimilarityTransform | None = None,
     with_scale: bool = True,
     iterations: int = 100,
-    tolerance: float = 1e-8,
+    tolerance: float = 1e-6,
     max_points: int | None = 20_000,
 ) -> IcpResult:
     """Point-to-surface ICP with a similarity transform, for meshes without correspondence.

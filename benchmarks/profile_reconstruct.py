@@ -1,0 +1,85 @@
+"""Where ``reconstruct`` spends its time: a per-stage table (the report's timings) and the
+functions that take the most cumulative and own time (cProfile), for one input.
+
+By default the input is what a user gives: the ``video.mp4`` of a ``monoavatar synth
+turnaround`` scene (120 frames, 540 x 540, made on first use in ``--scene``) with ``--focal``
+and ``--height`` from the scene, default settings, and an empty perception cache (a private
+one under ``--out``), so that perception is measured too.
+
+Run: ``OMP_NUM_THREADS=2 python benchmarks/profile_reconstruct.py --scene S --out DIR``;
+``--input PATH`` profiles another input (a video, an image or synth folder) instead.
+Writes ``DIR/profile.txt`` (the tables) and ``DIR/reconstruct.prof`` (for snakeviz and
+friends) and prints the tables.
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import io
+import json
+import os
+import pstats
+import shutil
+import time
+from dataclasses import replace
+from pathlib import Path
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--scene", type=Path, default=Path("out/profile_scene"),
+                    help="synth turn-around folder (made if missing)")  # fmt: skip
+    ap.add_argument("--input", type=Path, default=None, help="profile this input instead")
+    ap.add_argument("--frames", type=int, default=120, help="frames of the scene and key-frames")
+    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--top", type=int, default=30, help="rows of each function table")
+    args = ap.parse_args()
+    args.out.mkdir(parents=True, exist_ok=True)
+    cache = args.out / "cache"
+    shutil.rmtree(cache, ignore_errors=True)
+    os.environ["MONOAVATAR_CACHE"] = str(cache)  # an empty perception and stage cache
+
+    from monoavatar.pipelines.reconstruct import ReconstructConfig, reconstruct
+    from monoavatar.pipelines.stages import InputSettings
+    from monoavatar.synth.scene import SynthConfig, generate
+
+    base = ReconstructConfig()
+    config = replace(base, input=replace(base.input, frames=args.frames), progress=False)
+    if args.input is None:
+        if not (args.scene / "scene.json").is_file():
+            generate(args.scene, SynthConfig(kind="turnaround", frames=args.frames, seed=0))
+        info = json.loads((args.scene / "scene.json").read_text())
+        focal = float(info["camera"]["K"][0][0])
+        height = float(info["subjects"][0]["height_m"])
+        source: Path = args.scene / "video.mp4"
+        config = replace(config, input=InputSettings(frames=args.frames, focal=focal),
+                         pose=replace(base.pose, height=height))  # fmt: skip
+    else:
+        source = args.input
+    out = args.out / "avatar"
+    shutil.rmtree(out, ignore_errors=True)
+    profiler = cProfile.Profile()
+    start = time.perf_counter()
+    profiler.enable()
+    result = reconstruct(source, out, config)
+    profiler.disable()
+    wall = time.perf_counter() - start
+    profiler.dump_stats(args.out / "reconstruct.prof")
+
+    lines = [f"input: {source}  ({args.frames} key-frames)", f"wall clock: {wall:.1f} s", "",
+             "| stage | seconds | share |", "|---|---|---|"]  # fmt: skip
+    for stage, seconds in result.report.timings.items():
+        lines.append(f"| {stage} | {seconds:.1f} | {100 * seconds / wall:.0f} % |")
+    for key, title in (("cumulative", "cumulative time"), ("tottime", "own time")):
+        text = io.StringIO()
+        pstats.Stats(profiler, stream=text).strip_dirs().sort_stats(key).print_stats(args.top)
+        body = text.getvalue()
+        lines += ["", f"## functions by {title}", "", body[body.find("ncalls"):].rstrip()]
+    report = "\n".join(lines) + "\n"
+    (args.out / "profile.txt").write_text(report)
+    print(report)
+
+
+if __name__ == "__main__":
+    main()
