@@ -26,6 +26,31 @@ from dataclasses import replace
 from pathlib import Path
 
 
+def _profile_worker_threads() -> list[cProfile.Profile]:
+    """Profile the threads of ``core.threads.frame_pool`` too (cProfile sees only the thread
+    that enabled it): its pool class is replaced by one whose threads each start a profiler,
+    returned in the list as they start."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    import monoavatar.core.threads as threads
+
+    profilers: list[cProfile.Profile] = []
+
+    class ProfiledPool(ThreadPoolExecutor):
+        def __init__(self, max_workers: int, initializer=None, initargs=()):  # type: ignore[no-untyped-def]
+            def start(*a: object) -> None:
+                profiler = cProfile.Profile()
+                profilers.append(profiler)
+                profiler.enable()
+                if initializer is not None:
+                    initializer(*a)
+
+            super().__init__(max_workers=max_workers, initializer=start, initargs=initargs)
+
+    threads.ThreadPoolExecutor = ProfiledPool  # type: ignore[misc]
+    return profilers
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scene", type=Path, default=Path("out/profile_scene"),
@@ -34,6 +59,8 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=120, help="frames of the scene and key-frames")
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--top", type=int, default=30, help="rows of each function table")
+    ap.add_argument("--workers", type=int, default=None,
+                    help="threads of the flow and texture stages (default: reconstruct's)")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     cache = args.out / "cache"
@@ -57,23 +84,33 @@ def main() -> None:
                          pose=replace(base.pose, height=height))  # fmt: skip
     else:
         source = args.input
+    if args.workers is not None:
+        config = replace(config, flow=replace(config.flow, workers=args.workers),
+                         texture=replace(config.texture, workers=args.workers))  # fmt: skip
     out = args.out / "avatar"
     shutil.rmtree(out, ignore_errors=True)
     profiler = cProfile.Profile()
+    workers = _profile_worker_threads()
     start = time.perf_counter()
     profiler.enable()
     result = reconstruct(source, out, config)
     profiler.disable()
     wall = time.perf_counter() - start
-    profiler.dump_stats(args.out / "reconstruct.prof")
+    stats = pstats.Stats(profiler)
+    for worker in workers:
+        stats.add(worker)
+    stats.dump_stats(args.out / "reconstruct.prof")
 
-    lines = [f"input: {source}  ({args.frames} key-frames)", f"wall clock: {wall:.1f} s", "",
+    lines = [f"input: {source}  ({args.frames} key-frames, {config.flow.workers} worker "
+             "thread(s), their functions included)",
+             f"wall clock: {wall:.1f} s (under the profiler)", "",
              "| stage | seconds | share |", "|---|---|---|"]  # fmt: skip
     for stage, seconds in result.report.timings.items():
         lines.append(f"| {stage} | {seconds:.1f} | {100 * seconds / wall:.0f} % |")
     for key, title in (("cumulative", "cumulative time"), ("tottime", "own time")):
         text = io.StringIO()
-        pstats.Stats(profiler, stream=text).strip_dirs().sort_stats(key).print_stats(args.top)
+        pstats.Stats(str(args.out / "reconstruct.prof"), stream=text).strip_dirs().sort_stats(
+            key).print_stats(args.top)
         body = text.getvalue()
         lines += ["", f"## functions by {title}", "", body[body.find("ncalls"):].rstrip()]
     report = "\n".join(lines) + "\n"

@@ -42,23 +42,36 @@ def _mediapipe() -> Any:
 
 @contextmanager
 def native_stderr_hidden() -> Iterator[None]:
-    """Hide what is written to the process's stderr (file descriptor 2) inside the block: the
-    TensorFlow Lite and absl lines mediapipe's native code prints when a graph starts and first
-    runs ("Created TensorFlow Lite XNNPACK delegate", "All log messages before
-    absl::InitializeLog()", "Feedback manager ...") read like errors. What was hidden is shown
-    if the block raises."""
+    """Hide what native code writes to the process's stderr (file descriptor 2) inside the
+    block: the TensorFlow Lite and absl lines mediapipe's graphs print when they start and first
+    run, some from their own threads ("Created TensorFlow Lite XNNPACK delegate", "All log
+    messages before absl::InitializeLog()", "Feedback manager ..."), read like errors. Python's
+    own ``sys.stderr`` (progress bars, warnings) still reaches the terminal: when it is the
+    process's stderr it is pointed at a copy of it for the block. What was hidden is shown if
+    the block raises. Blocks may nest."""
     sys.stderr.flush()
     saved = os.dup(2)
+    python_stderr = sys.stderr
+    try:
+        swap = python_stderr.fileno() == 2
+    except (AttributeError, OSError, ValueError):  # replaced by a stream without a descriptor
+        swap = False
     with tempfile.TemporaryFile() as sink:
         os.dup2(sink.fileno(), 2)
+        if swap:  # its own descriptor: it stays valid if a progress bar keeps it after the block
+            sys.stderr = open(os.dup(saved), "w", buffering=1, encoding=python_stderr.encoding,
+                              errors="backslashreplace")  # noqa: SIM115
         try:
             yield
         except BaseException:
             os.dup2(saved, 2)
             sink.seek(0)
-            sys.stderr.write(sink.read().decode("utf-8", "replace"))
+            os.write(saved, sink.read())
             raise
         finally:
+            if swap:
+                sys.stderr.flush()
+                sys.stderr = python_stderr
             os.dup2(saved, 2)
             os.close(saved)
 

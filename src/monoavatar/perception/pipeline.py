@@ -51,6 +51,7 @@ from monoavatar.perception.masks import (
     select_person,
     smooth_frame,
 )
+from monoavatar.perception.mediapipe_backend import native_stderr_hidden
 from monoavatar.perception.observations import Observations, PrecomputedPerception
 
 _VISIBLE = 0.5  # keypoint confidence above which a landmark counts as seen
@@ -417,7 +418,8 @@ def perceive(
             dets = detectors if detectors is not None else default_detectors(settings, pre)
             if detectors is None:
                 owned = dets
-            raw = _run(frames, settings, dets, pre)
+            with native_stderr_hidden():  # mediapipe's graphs log as they start, from threads
+                raw = _run(frames, settings, dets, pre)
             source = pre.keypoint_source if pre.keypoints is not None else (
                 dets.pose.name if dets.pose is not None else "none"
             )
