@@ -23,36 +23,38 @@ def test_hidden_text_is_shown_when_the_block_raises(capfd: pytest.CaptureFixture
     assert "the native error message" in err
 
 
+def _python(*lines: str) -> subprocess.CompletedProcess[str]:
+    """Run ``lines`` as a program in a fresh interpreter (stderr as a terminal's: fd 2)."""
+    return subprocess.run([sys.executable, "-c", "\n".join(lines)], capture_output=True,
+                          text=True, timeout=180, check=True)  # fmt: skip
+
+
 def test_python_stderr_stays_visible_in_a_subprocess() -> None:
-    """Run as a user's terminal would: fd 2 is the process's stderr; inside the block native
-    writes vanish, progress bars and warnings (Python's sys.stderr) do not, nesting included."""
-    code = ("import os, sys\n"
-            "from monoavatar.perception.mediapipe_backend import native_stderr_hidden\n"
-            "with native_stderr_hidden():\n"
-            "    os.write(2, b'native outer\\n')\n"
-            "    print('python outer', file=sys.stderr)\n"
-            "    with native_stderr_hidden():\n"
-            "        os.write(2, b'native inner\\n')\n"
-            "        print('python inner', file=sys.stderr)\n"
-            "os.write(2, b'native after\\n')\n")  # fmt: skip
-    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         timeout=60, check=True)  # fmt: skip
+    """Inside the block native writes vanish, progress bars and warnings (Python's
+    sys.stderr) do not, nesting included."""
+    run = _python("import os, sys",
+                  "from monoavatar.perception.mediapipe_backend import native_stderr_hidden",
+                  "with native_stderr_hidden():",
+                  "    os.write(2, b'native outer\\n')",
+                  "    print('python outer', file=sys.stderr)",
+                  "    with native_stderr_hidden():",
+                  "        os.write(2, b'native inner\\n')",
+                  "        print('python inner', file=sys.stderr)",
+                  "os.write(2, b'native after\\n')")  # fmt: skip
     assert run.stderr.split() == ["python", "outer", "python", "inner", "native", "after"]
 
 
 def test_perception_prints_no_native_log_lines() -> None:
     """Perception of a real photograph of a person (every model starts: detector, landmarks,
     segmentation, face mesh) in a fresh process, as the CLI runs it: no native log lines."""
-    code = ("import numpy as np\n"
-            "from skimage import data\n"
-            "from monoavatar.io.frames import Frames\n"
-            "from monoavatar.perception.pipeline import perceive\n"
-            "photo = np.ascontiguousarray(data.astronaut())\n"
-            "frames = Frames(np.stack([photo] * 3), np.arange(3) / 3.0, np.arange(3), fps=3.0)\n"
-            "obs = perceive(frames, use_cache=False)\n"
-            "print(int((~obs.no_person).sum()), int(obs.face_found.sum()))\n")  # fmt: skip
-    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         timeout=180, check=True)  # fmt: skip
+    run = _python("import numpy as np",
+                  "from skimage import data",
+                  "from monoavatar.io.frames import Frames",
+                  "from monoavatar.perception.pipeline import perceive",
+                  "photo = np.ascontiguousarray(data.astronaut())",
+                  "frames = Frames(np.stack([photo] * 3), np.arange(3) / 3.0, np.arange(3))",
+                  "obs = perceive(frames, use_cache=False)",
+                  "print(int((~obs.no_person).sum()), int(obs.face_found.sum()))")  # fmt: skip
     assert run.stdout.split() == ["3", "3"]  # the person and the face were found every time
     for noise in ("TensorFlow Lite", "absl::InitializeLog", "Feedback manager", "W0000"):
         assert noise not in run.stderr, run.stderr
