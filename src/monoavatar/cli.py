@@ -418,7 +418,7 @@ def _inputs_and_body(args: argparse.Namespace) -> tuple[ReconstructConfig, Input
     config = _config(args)
     config.validate()
     args.output.mkdir(parents=True, exist_ok=True)  # an unwritable output fails before the work
-    inputs = load_inputs(args.input, config.input)
+    inputs = load_inputs(args.input, config.input, progress=config.progress)
     return config, inputs, load_body_model(config.body_model)
 
 

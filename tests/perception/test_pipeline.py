@@ -51,6 +51,17 @@ def test_result_shapes_and_content(fakes: tuple[FakePose, FakeSegmenter, FakeFac
     assert obs.flow is None
 
 
+def test_progress_bar_counts_the_frames(fakes: tuple[FakePose, FakeSegmenter, FakeFace],
+                                        capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    pose, _, face = fakes
+    frames = Frames.from_images(blob_frames(5))
+    perceive(frames, detectors=Detectors(pose=pose, face=face), use_cache=False, progress=True)
+    err = capsys.readouterr().err
+    assert "perception: 100%" in err and "5/5" in err
+    perceive(frames, detectors=Detectors(pose=pose, face=face), use_cache=False)
+    assert "perception" not in capsys.readouterr().err  # off by default
+
+
 def test_second_run_skips_the_detectors(
     fakes: tuple[FakePose, FakeSegmenter, FakeFace], isolated_cache: Path
 ) -> None:

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
+from tqdm import tqdm
 
 from monoavatar.core.camera import PinholeCamera
 from monoavatar.core.errors import format_indices
@@ -254,6 +255,7 @@ def _run(
     settings: PerceptionSettings,
     dets: Detectors,
     pre: PrecomputedPerception,
+    progress: bool = False,
 ) -> _Raw:
     n, h, w = len(frames), frames.height, frames.width
     need_pose, _, need_face = _needs(settings, pre)
@@ -268,7 +270,8 @@ def _run(
     min_area = max(1, int(settings.min_mask_fraction * h * w))
     probs = np.zeros((n, h, w), dtype=np.uint8) if pre.masks is None else None
 
-    for i, image in enumerate(frames.images):
+    images = tqdm(frames.images, desc="perception", unit="frame", disable=not progress)
+    for i, image in enumerate(images):
         result = dets.pose.detect(image) if (need_pose and dets.pose is not None) else None
         if (
             result is not None
@@ -370,6 +373,7 @@ def perceive(
     precomputed: PrecomputedPerception | None = None,
     use_cache: bool = True,
     cache_dir: str | Path | None = None,
+    progress: bool = False,
 ) -> Observations:
     """Person masks, body and face landmarks (and optionally flow) for every frame.
 
@@ -383,6 +387,7 @@ def perceive(
             the corresponding detector.
         use_cache: read and write the on-disk cache.
         cache_dir: cache root (default ``$MONOAVATAR_CACHE`` or ``~/.cache/monoavatar``).
+        progress: show a progress bar while the detectors run.
     Returns:
         Observations for all N frames; frames without a person are flagged in ``no_person``.
     Warns:
@@ -419,7 +424,7 @@ def perceive(
             if detectors is None:
                 owned = dets
             with native_stderr_hidden():  # mediapipe's graphs log as they start, from threads
-                raw = _run(frames, settings, dets, pre)
+                raw = _run(frames, settings, dets, pre, progress)
             source = pre.keypoint_source if pre.keypoints is not None else (
                 dets.pose.name if dets.pose is not None else "none"
             )

@@ -164,7 +164,7 @@ def _read(input_path: str | Path, config: PhotoConfig) -> Inputs:
 
     path = Path(input_path)
     if path.is_dir() or config.input.perception == "ground-truth":
-        inputs = load_inputs(path, config.input)
+        inputs = load_inputs(path, config.input)  # one image: the stage bar is enough
         if len(inputs.frames.images) != 1:
             raise PipelineError(f"{path} holds {len(inputs.frames.images)} frames; "
                                 "'monoavatar photo' takes one image")  # fmt: skip

@@ -266,7 +266,7 @@ def _reconstruct(input_path: str | Path, out: Path, config: ReconstructConfig
     start = time.perf_counter()
     with kept_warnings() as records:  # kept for the report, shown however the run ends
         with timer("perception"):
-            inputs = load_inputs(input_path, config.input)
+            inputs = load_inputs(input_path, config.input, progress=config.progress)
         if inputs.kind == "image":
             raise PipelineError(f"{input_path} is a single image; reconstruct needs a video (or "
                                 "frames) of a person turning around. For one photo use "

@@ -190,8 +190,9 @@ class Inputs:
     ground_truth: SynthGroundTruth | None
 
 
-def load_inputs(path: str | Path, settings: InputSettings) -> Inputs:
-    """Read key-frames and perceive them (or take a folder's own perception).
+def load_inputs(path: str | Path, settings: InputSettings, *, progress: bool = False) -> Inputs:
+    """Read key-frames and perceive them (or take a folder's own perception); ``progress``
+    shows a bar while the detectors run.
 
     Raises:
         InputNotFoundError: no such file or folder; PipelineError: an option that needs
@@ -216,7 +217,8 @@ def load_inputs(path: str | Path, settings: InputSettings) -> Inputs:
         if settings.perception in ("auto", "ground-truth"):
             obs = scene.observations
         else:
-            obs = perceive(scene.frames, scene.camera, settings.perception_settings)
+            obs = perceive(scene.frames, scene.camera, settings.perception_settings,
+                           progress=progress)
         return Inputs(scene.frames, obs, "synth", scene.ground_truth)
     if settings.poses == "ground-truth":
         raise PipelineError("--poses ground-truth needs a monoavatar synth folder as input")
@@ -227,7 +229,8 @@ def load_inputs(path: str | Path, settings: InputSettings) -> Inputs:
             camera = resolve_camera(snap.frames.width, snap.frames.height, focal_px=settings.focal,
                                     camera_path=settings.camera)  # fmt: skip
         pre = snap.precomputed if settings.perception != "mediapipe" else None
-        obs = perceive(snap.frames, camera, settings.perception_settings, precomputed=pre)
+        obs = perceive(snap.frames, camera, settings.perception_settings, precomputed=pre,
+                       progress=progress)
         return Inputs(snap.frames, obs, "people-snapshot", None)
     if settings.perception == "ground-truth":
         raise PipelineError(
@@ -242,7 +245,7 @@ def load_inputs(path: str | Path, settings: InputSettings) -> Inputs:
     focal = None if settings.focal is None else settings.focal * frames.scale
     camera = resolve_camera(frames.width, frames.height, focal_px=focal,
                             camera_path=settings.camera)  # fmt: skip
-    obs = perceive(frames, camera, settings.perception_settings)
+    obs = perceive(frames, camera, settings.perception_settings, progress=progress)
     kind = "images" if path.is_dir() else ("image" if len(frames) == 1 else "video")
     return Inputs(frames, obs, kind, None)
 

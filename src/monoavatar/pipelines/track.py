@@ -135,7 +135,7 @@ def track(input_path: str | Path, out_dir: str | Path, config: TrackConfig | Non
     with kept_warnings() as caught:  # kept for the report, shown however the run ends
         with timer("inputs"):
             body, avatar = _body_and_avatar(config)
-            inputs = load_inputs(input_path, config.input)
+            inputs = load_inputs(input_path, config.input, progress=config.progress)
         obs = inputs.observations
         if config.track.flow and obs.flow is None:  # a synth folder's own perception
             from monoavatar.perception.flow import flow_sequence, make_flow_estimator
