@@ -31,7 +31,7 @@ import torch
 
 from monoavatar.bench.measure import ground_truth_measurements
 from monoavatar.bench.suite import FULL_SUBJECTS, BenchSubject, ensure_scene
-from monoavatar.body import load_body_model
+from monoavatar.body import BodyModel, load_body_model
 from monoavatar.datasets.synth_scene import read_synth_scene
 from monoavatar.measure import MEASUREMENTS, measure_mesh, vertex_parts
 from monoavatar.pipelines.measure import MeasureConfig, measure_folder
@@ -57,7 +57,7 @@ def _avatar(subject: BenchSubject, scene: Path, recon: Path, height: float) -> P
     return out
 
 
-def _average_body(body, height: float) -> dict[str, float]:  # type: ignore[no-untyped-def]
+def _average_body(body: BodyModel, height: float) -> dict[str, float]:
     """Measurements of the model's average body scaled to ``height``, metres."""
     with torch.no_grad():
         v, j = body.rest_shape(body.default_shape())

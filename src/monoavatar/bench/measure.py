@@ -4,8 +4,6 @@ stage's own, so that an error in those cannot hide in the comparison."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import torch
 import trimesh
@@ -23,7 +21,7 @@ from monoavatar.measure import (
     vertex_parts,
 )
 
-__all__ = ["ground_truth_measurements", "measurements_of", "trimesh_slicer"]
+__all__ = ["ground_truth_measurements", "trimesh_slicer"]
 
 
 def _section(vertices: np.ndarray, faces: np.ndarray, origin: np.ndarray,
@@ -69,11 +67,3 @@ def ground_truth_measurements(truth: SynthGroundTruth, body: BodyModel, subject:
         "clothed": measure_mesh(cv, cf, transfer_parts(v, parts, cv), j, body.joint_names,
                                 settings, slicer),
     }  # fmt: skip
-
-
-def measurements_of(path: str | Path) -> dict[str, dict[str, float | None]]:
-    """The measurement values of a ``measurements.json`` (name → {"body", "clothed"})."""
-    import json
-
-    data = json.loads(Path(path).read_text())
-    return {k: v for k, v in data.items() if isinstance(v, dict)}

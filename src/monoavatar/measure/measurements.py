@@ -186,25 +186,23 @@ def measure_mesh(vertices: np.ndarray, faces: np.ndarray, parts: np.ndarray,
                                                                            for n in names]))
         return girth(section)
 
-    def horizontal(heights: np.ndarray, names: Sequence[str], pick: str) -> Measurement:
-        found = [girth_at(np.array([0.0, h, 0.0]), up, names) for h in heights]
-        lengths = np.array([g for g, _ in found])
-        valid = lengths > 0
-        if not valid.any():
-            return Measurement(float("nan"), "girth")
-        k = int(np.argmax(np.where(valid, lengths, -np.inf)) if pick == "max"
-                else np.argmin(np.where(valid, lengths, np.inf)))  # fmt: skip
-        return Measurement(float(lengths[k]), "girth", [back(_closed(found[k][1]))])
-
-    def along(a: str, b: str, band: tuple[float, float], names: Sequence[str]) -> Measurement:
-        axis = j[b] - j[a]
-        found = [girth_at(j[a] + f * axis, axis, names)
-                 for f in np.linspace(band[0], band[1], s.samples if band[0] != band[1] else 1)]
+    def best(found: list[tuple[float, np.ndarray]], pick: str = "max") -> Measurement:
+        """The largest (or smallest) of the girths ``found``, drawn; NaN when none is."""
         lengths = np.array([g for g, _ in found])
         if not (lengths > 0).any():
             return Measurement(float("nan"), "girth")
-        k = int(np.argmax(lengths))
+        masked = np.where(lengths > 0, lengths, -np.inf if pick == "max" else np.inf)
+        k = int(np.argmax(masked) if pick == "max" else np.argmin(masked))
         return Measurement(float(lengths[k]), "girth", [back(_closed(found[k][1]))])
+
+    def horizontal(heights: np.ndarray, names: Sequence[str], pick: str) -> Measurement:
+        return best([girth_at(np.array([0.0, h, 0.0]), up, names) for h in heights], pick)
+
+    def along(a: str, b: str, band: tuple[float, float], names: Sequence[str]) -> Measurement:
+        axis = j[b] - j[a]
+        count = s.samples if band[0] != band[1] else 1
+        return best([girth_at(j[a] + f * axis, axis, names)
+                     for f in np.linspace(band[0], band[1], count)])  # fmt: skip
 
     def both(make: Callable[[str], Measurement]) -> Measurement:
         sides = [make(side) for side in ("l", "r")]
@@ -251,7 +249,7 @@ def measure_mesh(vertices: np.ndarray, faces: np.ndarray, parts: np.ndarray,
                             ["torso"], "min"),
         "hip": horizontal(np.linspace(hip_y - s.hip_band * thigh_bone, j["spine1"][1], n),
                           ["torso", "leg_l", "leg_r"], "max"),
-        "neck": _from(girth_at(j["neck"] + 0.5 * neck_axis, neck_axis, ["neck", "head"]), back),
+        "neck": best([girth_at(j["neck"] + 0.5 * neck_axis, neck_axis, ["neck", "head"])]),
         "upper_arm": both(lambda d: along(f"shoulder_{d}", f"elbow_{d}", (0.5, 0.5),
                                           [f"arm_{d}"])),
         "thigh": both(lambda d: along(f"hip_{d}", f"knee_{d}", s.thigh_band, [f"leg_{d}"])),
@@ -268,11 +266,3 @@ def measure_mesh(vertices: np.ndarray, faces: np.ndarray, parts: np.ndarray,
 
 def _closed(corners: np.ndarray) -> np.ndarray:
     return np.vstack([corners, corners[:1]]) if len(corners) else corners
-
-
-def _from(found: tuple[float, np.ndarray],
-          back: Callable[[np.ndarray], np.ndarray]) -> Measurement:  # fmt: skip
-    length, corners = found
-    if length <= 0:
-        return Measurement(float("nan"), "girth")
-    return Measurement(length, "girth", [back(_closed(corners))])
