@@ -265,13 +265,17 @@ def _add_reconstruct(p: argparse.ArgumentParser) -> None:
 
 
 def _with_ground_truth(result: ReconstructResult) -> None:
-    """For a synth input: the surface error against its ground truth, into report.json."""
-    from monoavatar.bench.ground_truth import ground_truth_error
+    """For a synth input: the surface error against its ground truth, into report.json, and
+    each vertex's, into ground_truth.npz (the heat map of ``monoavatar view``)."""
+    from monoavatar.bench.ground_truth import ground_truth_error_map
+    from monoavatar.core.files import atomic_write_npz
+    from monoavatar.io.avatar_folder import GROUND_TRUTH_FILE
 
     truth = result.inputs.ground_truth
     if truth is None:
         return
-    result.report.ground_truth = ground_truth_error(result.body, result.shape, truth)
+    result.report.ground_truth, errors = ground_truth_error_map(result.body, result.shape, truth)
+    atomic_write_npz(result.out_dir / GROUND_TRUTH_FILE, vertex_error_m=errors)
     result.report.write(result.out_dir / "report.json")
 
 
@@ -300,6 +304,11 @@ def _print_summary(report: Report, out: Path) -> None:
               "after a similarity transform alone)")  # fmt: skip
     for warning in report.warnings[:5]:
         print(f"  warning: {warning}")
+    _print_view_line(out)
+
+
+def _print_view_line(out: Path) -> None:
+    print(f"look at it: monoavatar view {out}")
 
 
 # -- track -------------------------------------------------------------------------------------
@@ -403,6 +412,7 @@ def _run_track(args: argparse.Namespace) -> int:
               f"{gt['acceleration_mm_per_frame2']:.1f} mm/frame^2")  # fmt: skip
     for warning in report["warnings"][:5]:
         print(f"  warning: {warning}")
+    _print_view_line(result.folder)
     return 0
 
 
@@ -567,6 +577,7 @@ def _run_photo(args: argparse.Namespace) -> int:
           f"time {report.seconds:.1f} s")  # fmt: skip
     for warning in report.warnings[:5]:
         print(f"  warning: {warning}")
+    _print_view_line(result.folder)
     return 0
 
 
@@ -714,6 +725,48 @@ def _run_animate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _add_view(p: argparse.ArgumentParser) -> None:
+    p.description = ("Look at an avatar in a browser: the textured avatar under orbit controls "
+                     "beside the input frames with the fitted avatar over them, its motions, "
+                     "and for a synthetic input the error heat map. Serves a local page "
+                     "(nothing is fetched from the network), or writes it as one "
+                     "self-contained HTML file with --html.")  # fmt: skip
+    p.add_argument("avatar", type=Path,
+                   help="a folder written by reconstruct, photo or track, or a .glb written by "
+                        "animate")  # fmt: skip
+    p.add_argument("--port", type=int, default=8000, help="port on 127.0.0.1 (default 8000)")
+    p.add_argument("--html", type=Path, default=None,
+                   help="write the page to this .html file instead of serving it")
+    p.add_argument("--no-motions", action="store_true",
+                   help="leave out the built-in motions (no body model is loaded)")
+    p.set_defaults(run=_run_view)
+
+
+def _run_view(args: argparse.Namespace) -> int:
+    from monoavatar.core.errors import InputError
+    from monoavatar.io.viewer_page import page_html, serve_page, write_page
+    from monoavatar.pipelines.view import ViewConfig, viewer_page
+
+    if args.html is not None and args.html.suffix.lower() not in (".html", ".htm"):
+        raise InputError(args.html, "the page is written as HTML: give a .html path")
+    if not 0 <= args.port <= 65535:
+        raise MonoavatarError(f"--port must lie in [0, 65535], got {args.port}")
+    page = viewer_page(args.avatar, ViewConfig(motions=() if args.no_motions else
+                                               ViewConfig().motions))  # fmt: skip
+    if args.html is not None:
+        path = write_page(args.html, page)
+        print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB; open it in any browser)")
+        return 0
+    server = serve_page(page_html(page), args.port)
+    port = server.server_address[1]
+    print(f"monoavatar view: http://127.0.0.1:{port}/ (Ctrl-C to stop)", flush=True)
+    try:
+        server.serve_forever()
+    finally:
+        server.server_close()
+    return 0
+
+
 def _add_demo(p: argparse.ArgumentParser) -> None:
     p.description = ("The embedded default: render a synthetic person turning around "
                      "(monoavatar synth turnaround), reconstruct an avatar from the rendered "
@@ -838,6 +891,8 @@ VERBS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None]]] = {
                 _add_measure),
     "animate": ("re-pose an avatar with a built-in motion or another video's poses "
                 "(animated glb)", _add_animate),
+    "view": ("look at an avatar, its fit and its motion in a browser (or one HTML file)",
+             _add_view),
     "bench": ("measure accuracy and speed on a fixed synthetic suite, beside the dissertation",
               _add_bench),
     "synth": ("render a synthetic ground-truth scene (frames, masks, keypoints, meshes)",

@@ -18,15 +18,22 @@ def ground_truth_error(body: BodyModel, shape: CanonicalShape,
     """The canonical avatar's surface error against the truth's first subject, in mm: after a
     similarity transform and the avatar's articulated pose fitted to the truth
     (:func:`~monoavatar.bench.metrics.surface_metrics`), and after the similarity alone."""
+    return ground_truth_error_map(body, shape, truth)[0]
+
+
+def ground_truth_error_map(body: BodyModel, shape: CanonicalShape, truth: SynthGroundTruth
+                           ) -> tuple[GroundTruthSummary, np.ndarray]:  # fmt: skip
+    """:func:`ground_truth_error` and the (V,) distance (metres) of each avatar vertex to the
+    ground-truth surface after both alignments (the heat map of ``monoavatar view``)."""
     mesh = truth.canonical_mesh(0)
     with torch.no_grad():
         _, joints = body.rest_shape(shape.shape.to(body.dtype)[None])
     rig = Rig(body.skin_weights.double().numpy(), joints[0].double().numpy(),
               tuple(body.parents))  # fmt: skip
-    metrics, _ = surface_metrics(shape.vertices.double().numpy(), shape.faces.numpy(),
+    metrics, heat = surface_metrics(shape.vertices.double().numpy(), shape.faces.numpy(),
                                  np.asarray(mesh.vertices), np.asarray(mesh.faces),
                                  rig=rig)  # fmt: skip
     return GroundTruthSummary(
         surface_error_mm=metrics.mean_mm,
         surface_error_rigid_mm=float(metrics.rigid_mean_mm or metrics.mean_mm),
-    )
+    ), np.asarray(heat.errors, dtype=np.float64)

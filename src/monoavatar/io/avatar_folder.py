@@ -11,6 +11,10 @@ Files of a folder::
     params.npz      AvatarParams (keys below)
     report.json     Report
     preview/*.png   pictures of the result
+    keyframes.jpg   the key-frames as one picture (``monoavatar view`` shows them), tiles row
+                    by row (:func:`~monoavatar.io.viewer_page.keyframe_atlas`)
+    ground_truth.npz  for a synth input: ``vertex_error_m`` (V,) each avatar vertex's distance
+                    to the ground-truth surface after alignment, metres
 
 ``params.npz`` keys: ``format`` (:data:`FORMAT`); ``body_model`` (identity string); ``shape``
 (S,); ``offsets`` (V, 3) canonical metres; ``poses`` (K, J, 3) axis-angle radians per key-frame
@@ -49,6 +53,8 @@ from monoavatar.io.export_mesh import read_obj, write_obj
 __all__ = [
     "AVATAR_FILES",
     "FORMAT",
+    "GROUND_TRUTH_FILE",
+    "KEYFRAMES_FILE",
     "AvatarFolder",
     "AvatarFolderError",
     "AvatarParams",
@@ -67,6 +73,8 @@ FORMAT = "monoavatar-reconstruction-1"
 AVATAR_FILES = ("avatar.glb", "avatar.obj", "avatar.mtl", "texture.png", "params.npz",
                 "report.json")  # fmt: skip
 """The files of an avatar folder (besides ``preview/``)."""
+KEYFRAMES_FILE = "keyframes.jpg"
+GROUND_TRUTH_FILE = "ground_truth.npz"
 
 STALE_STAGING_S = 600.0
 """A staging folder older than this (seconds) is a dead run's and is removed by the next save."""

@@ -46,7 +46,11 @@ __all__ = [
     "GltfExportError",
     "PoseAnimation",
     "SkinnedMesh",
+    "axis_angle_quaternions",
+    "GlbSkin",
     "dense_weights",
+    "glb_bytes",
+    "read_glb_skin",
     "limit_influences",
     "skinned_mesh_from_body",
     "split_uv_seams",
@@ -364,7 +368,7 @@ def _png_bytes(texture: np.ndarray) -> bytes:
     return out.getvalue()
 
 
-def _quaternions(poses: np.ndarray) -> np.ndarray:
+def axis_angle_quaternions(poses: np.ndarray) -> np.ndarray:
     """(N, J, 3) axis-angle → (N, J, 4) unit quaternions (x, y, z, w), each joint's sequence
     kept on one hemisphere so that slerp between keyframes takes the short way."""
     n, j, _ = poses.shape
@@ -375,11 +379,16 @@ def _quaternions(poses: np.ndarray) -> np.ndarray:
     return q
 
 
-def _build(mesh: SkinnedMesh, animation: PoseAnimation | None) -> gl.GLTF2:
+def _build(mesh: SkinnedMesh, animations: Sequence[PoseAnimation] = (),
+           colors: np.ndarray | None = None) -> gl.GLTF2:  # fmt: skip
     mesh.check()
     num_joints = mesh.num_joints
-    if animation is not None:
+    for animation in animations:
         animation.check(num_joints)
+    if colors is not None and np.shape(colors) != (len(mesh.vertices), 3):
+        raise GltfExportError(
+            f"colors: expected ({len(mesh.vertices)}, 3), got {np.shape(colors)}"
+        )
     gltf = gl.GLTF2(asset=gl.Asset(generator=f"monoavatar {__version__}", version="2.0"))
     b = _Builder(gltf)
 
@@ -400,6 +409,11 @@ def _build(mesh: SkinnedMesh, animation: PoseAnimation | None) -> gl.GLTF2:
         JOINTS_0=b.accessor(joints.astype(joint_type), gl.VEC4, _ARRAY_BUFFER),
         WEIGHTS_0=b.accessor(_float32_weights(weights), gl.VEC4, _ARRAY_BUFFER),
     )
+    if colors is not None:
+        attributes.COLOR_0 = b.accessor(
+            np.clip(np.asarray(colors, dtype=np.float32)[source_vertex], 0.0, 1.0), gl.VEC3,
+            _ARRAY_BUFFER,
+        )
     indices = b.accessor(
         faces.reshape(-1).astype(index_type), gl.SCALAR, _ELEMENT_ARRAY_BUFFER, bounds=True
     )
@@ -453,10 +467,10 @@ def _build(mesh: SkinnedMesh, animation: PoseAnimation | None) -> gl.GLTF2:
     gltf.scenes.append(gl.Scene(name="avatar", nodes=[0, joint_node[0]]))
     gltf.scene = 0
 
-    if animation is not None:
+    for animation in animations:
         poses = np.asarray(animation.poses, dtype=np.float64)
         times = b.accessor(np.asarray(animation.times, dtype=np.float32), gl.SCALAR, bounds=True)
-        quats = _quaternions(poses).astype(np.float32)
+        quats = axis_angle_quaternions(poses).astype(np.float32)
         root = rest[0] + np.asarray(animation.translations, dtype=np.float64)
         anim = gl.Animation(name=animation.name)
         anim.samplers.append(
@@ -494,6 +508,14 @@ def _build(mesh: SkinnedMesh, animation: PoseAnimation | None) -> gl.GLTF2:
 
 
 # -- writers ---------------------------------------------------------------------------------
+def glb_bytes(mesh: SkinnedMesh, animations: Sequence[PoseAnimation] = (),
+              colors: np.ndarray | None = None) -> bytes:  # fmt: skip
+    """``mesh`` as a glTF 2.0 binary in memory, with ``animations`` (each a named glTF
+    animation) and, given ``colors`` (V, 3) RGB in [0, 1] per mesh vertex, a ``COLOR_0``
+    attribute."""
+    return b"".join(_build(mesh, animations, colors).save_to_bytes())
+
+
 def write_avatar_glb(
     path: str | Path, mesh: SkinnedMesh, animation: PoseAnimation | None = None
 ) -> Path:
@@ -503,7 +525,8 @@ def write_avatar_glb(
     file (and an existing file at ``path`` untouched). Returns ``path``.
     """
     path = Path(path)
-    chunks: Sequence[bytes] = _build(mesh, animation).save_to_bytes()
+    chunks: Sequence[bytes] = _build(mesh, () if animation is None else (animation,)
+                                     ).save_to_bytes()  # fmt: skip
     with atomic_path(path) as tmp, tmp.open("wb") as fh:
         for chunk in chunks:
             fh.write(chunk)
@@ -514,3 +537,40 @@ def write_animated_glb(path: str | Path, mesh: SkinnedMesh, animation: PoseAnima
     """Write ``mesh`` with ``animation`` (required) as a glTF 2.0 binary; see
     :func:`write_avatar_glb`."""
     return write_avatar_glb(path, mesh, animation)
+
+
+@dataclass(frozen=True)
+class GlbSkin:
+    """What a viewer needs to know of a skinned glb: ``joint_names`` (J,) in skin order,
+    ``positions`` (N, 3) float32 the mesh's vertex positions (after seam splitting),
+    ``rest_root`` (3,) the root joint node's rest translation, metres, and the names of its
+    ``animations``."""
+
+    joint_names: tuple[str, ...]
+    positions: np.ndarray
+    rest_root: np.ndarray
+    animations: tuple[str, ...]
+
+
+def read_glb_skin(payload: bytes) -> GlbSkin:
+    """Read :class:`GlbSkin` from a glTF binary with one skinned mesh (as this module writes).
+
+    Raises:
+        GltfExportError: not a glb, or no skinned mesh in it.
+    """
+    try:
+        gltf = gl.GLTF2.load_from_bytes(payload)
+    except Exception as exc:  # pygltflib raises bare errors of several kinds
+        raise GltfExportError(f"not a glTF binary ({exc})") from exc
+    if not gltf.skins or not gltf.meshes:
+        raise GltfExportError("the glb holds no skinned mesh")
+    names = tuple(str(gltf.nodes[j].name) for j in gltf.skins[0].joints)
+    accessor = gltf.accessors[gltf.meshes[0].primitives[0].attributes.POSITION]
+    view = gltf.bufferViews[accessor.bufferView]
+    blob = gltf.binary_blob()
+    start = (view.byteOffset or 0) + (accessor.byteOffset or 0)
+    positions = np.frombuffer(blob, dtype=np.float32, count=3 * accessor.count,
+                              offset=start).reshape(-1, 3)  # fmt: skip
+    root = np.asarray(gltf.nodes[gltf.skins[0].joints[0]].translation or [0.0, 0.0, 0.0],
+                      dtype=np.float64)  # fmt: skip
+    return GlbSkin(names, positions.copy(), root, tuple(str(a.name) for a in gltf.animations))

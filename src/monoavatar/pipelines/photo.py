@@ -31,7 +31,8 @@ import torch
 
 from monoavatar.body import BodyModel, load_body_model
 from monoavatar.fit.pose import PoseSettings, PoseTrack, fit_photo, world_up
-from monoavatar.io.avatar_folder import Report
+from monoavatar.io.avatar_folder import KEYFRAMES_FILE, Report
+from monoavatar.io.viewer_page import keyframe_atlas
 from monoavatar.learn.photo_data import base_fine_vertices, partial_texture
 from monoavatar.learn.photo_model import PhotoNetwork, load_photo_network
 from monoavatar.learn.uvmaps import DISPLACEMENT_SCALE, UVLayout, sample_vertex_values
@@ -288,7 +289,8 @@ def _export(out: Path, input_path: str | Path, body: BodyModel, inputs: Inputs,
     }
     folder = AvatarFolder(params, report, fine, sub.faces.numpy(), uv=sub.uv.double().numpy(),
                           face_uv=sub.face_uv.numpy(), texture=texture.image, previews=previews,
-                          extras=map_files(maps, layout.chart, visible))  # fmt: skip
+                          extras={**map_files(maps, layout.chart, visible),
+                                  KEYFRAMES_FILE: keyframe_atlas(photo_image[None])})  # fmt: skip
     glb = fine_skinned_mesh(body, layout, track.shape, fine, texture.image)
     return folder.save(out, glb=glb), report
 

@@ -27,6 +27,7 @@ from monoavatar.fit.flow_refine import FlowRefineSettings
 from monoavatar.fit.pose import PoseSettings, PoseTrack, evaluate_fit, world_up
 from monoavatar.fit.shape import CanonicalShape, ShapeSettings
 from monoavatar.io.avatar_folder import (
+    KEYFRAMES_FILE,
     AvatarFolder,
     AvatarParams,
     FitSummary,
@@ -35,6 +36,7 @@ from monoavatar.io.avatar_folder import (
     ScaleSummary,
     TextureSummary,
 )
+from monoavatar.io.viewer_page import keyframe_atlas
 from monoavatar.pipelines.previews import previews
 from monoavatar.pipelines.stages import (
     PERCEPTION,
@@ -237,6 +239,7 @@ def avatar_folder(body: BodyModel, inputs: Inputs, track: PoseTrack, shape: Cano
         params, report, shape.vertices.double().numpy(), body.faces.numpy(),
         uv=body.uv.double().numpy(), face_uv=body.face_uv.numpy(), texture=texture.image,
         previews=previews(body, inputs, track, shape, texture, sh),
+        extras={KEYFRAMES_FILE: keyframe_atlas(inputs.frames.images)},
     )  # fmt: skip
 
 
