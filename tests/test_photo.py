@@ -192,3 +192,19 @@ def test_reconstruct_points_a_single_photo_to_the_photo_command(
     assert main(["reconstruct", str(photo_folder / "photo.png"), "-o", str(out), "--quiet"]) == 2
     assert "monoavatar photo" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_view_shows_a_photo_avatar_over_its_photo(result, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    from monoavatar.io.viewer_page import write_page
+    from monoavatar.pipelines.view import ViewConfig, viewer_page
+    from tests.browser import CHROMIUM, Browser
+
+    page = viewer_page(result.folder, ViewConfig(motions=()))
+    assert page.data["keyframes"]["indices"] == [0]
+    assert page.data["clips"][0]["times"] == [0.0, 1.0]  # the one pose, held
+    if CHROMIUM is None:
+        pytest.skip("no chromium on PATH (the README's test command installs it)")
+    path = write_page(tmp_path / "photo.html", page)
+    with Browser(900, 500) as browser:
+        assert browser.open(f"{path.as_uri()}#paused=1") == "ready"
+        assert not [c for c in browser.console if c[0] in ("error", "exception")]

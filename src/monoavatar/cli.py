@@ -401,7 +401,7 @@ def _run_track(args: argparse.Namespace) -> int:
     result = track(args.input, args.output, config)
     report = result.report
     print(f"motion written to {result.folder}/")
-    print("  motion.npz  motion.bvh  motion.glb  preview/overlay.mp4  report.json")
+    print("  motion.npz  motion.bvh  motion.glb  preview/overlay.mp4  report.json  keyframes.jpg")
     print(f"  frames: {report['input']['frames']}  failed: {report['frames_failed']}  "
           f"re-initialised: {report['frames_reinitialised']}  "
           f"time: {report['seconds']:.1f} s ({report['seconds_per_frame']:.2f} s per frame)")

@@ -45,7 +45,9 @@ __all__ = ["ATLAS_TILE_HEIGHT", "ViewerPage", "atlas_grid", "keyframe_atlas", "p
            "serve_page", "split_atlas"]  # fmt: skip
 
 ATLAS_TILE_HEIGHT = 240
-"""Height (pixels) of one key-frame in ``keyframes.jpg``."""
+"""Height (pixels) of one key-frame in ``keyframes.jpg``, at most."""
+ATLAS_PIXELS = 16_000_000
+"""At most this many pixels in ``keyframes.jpg``: many frames get smaller tiles."""
 
 
 def atlas_grid(count: int) -> tuple[int, int]:
@@ -59,12 +61,14 @@ def atlas_grid(count: int) -> tuple[int, int]:
 def keyframe_atlas(images: np.ndarray, tile_height: int = ATLAS_TILE_HEIGHT,
                    quality: int = 82) -> bytes:  # fmt: skip
     """(K, H, W, 3) uint8 frames → one JPEG of K tiles, row by row (:func:`atlas_grid`), each
-    ``tile_height`` pixels high with the frames' aspect ratio."""
+    ``tile_height`` pixels high (less where the atlas would pass :data:`ATLAS_PIXELS`) with the
+    frames' aspect ratio."""
     images = np.asarray(images)
     if images.ndim != 4 or images.shape[-1] != 3 or images.dtype != np.uint8:
         raise ValueError(f"expected (K, H, W, 3) uint8 frames, got {images.shape} {images.dtype}")
     k, h, w, _ = images.shape
-    th = min(tile_height, h)
+    fitting = int(math.sqrt(ATLAS_PIXELS / (k * w / h)))
+    th = max(16, min(tile_height, h, fitting))
     tw = max(1, round(w * th / h))
     cols, rows = atlas_grid(k)
     atlas = Image.new("RGB", (cols * tw, rows * th))

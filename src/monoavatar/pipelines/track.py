@@ -29,10 +29,11 @@ from monoavatar.core.files import atomic_write_npz, staged_folder
 from monoavatar.eval.joints import tracking_errors
 from monoavatar.fit.pose import world_up
 from monoavatar.fit.tracking import MotionTrack, TrackSettings, track_motion
-from monoavatar.io.avatar_folder import AvatarFolder
+from monoavatar.io.avatar_folder import KEYFRAMES_FILE, AvatarFolder
 from monoavatar.io.bvh import write_bvh
 from monoavatar.io.export_mesh import write_mp4
 from monoavatar.io.gltf import PoseAnimation, skinned_mesh_from_body, write_animated_glb
+from monoavatar.io.viewer_page import keyframe_atlas
 from monoavatar.perception.observations import Observations
 from monoavatar.perception.pipeline import PerceptionSettings
 from monoavatar.pipelines.stages import (
@@ -48,7 +49,8 @@ from monoavatar.render import rasterize, render_normals
 __all__ = ["EVAL_JOINTS", "MOTION_FILES", "TrackConfig", "TrackQualityWarning", "TrackResult",
            "quality_warnings", "track"]  # fmt: skip
 
-MOTION_FILES = ("motion.npz", "motion.bvh", "motion.glb", "preview/overlay.mp4", "report.json")
+MOTION_FILES = ("motion.npz", "motion.bvh", "motion.glb", "preview/overlay.mp4", "report.json",
+                "keyframes.jpg")  # fmt: skip
 #: The 14 joints of the accuracy figures (Table A.1 measures 13-15 of HumanEva's).
 EVAL_JOINTS = ("head", "neck", "shoulder_l", "shoulder_r", "elbow_l", "elbow_r", "wrist_l",
                "wrist_r", "hip_l", "hip_r", "knee_l", "knee_r", "ankle_l", "ankle_r")  # fmt: skip
@@ -284,6 +286,7 @@ def _export(body: BodyModel, inputs: Inputs, motion: MotionTrack, avatar: Avatar
         write_animated_glb(staging / "motion.glb", mesh,
                            PoseAnimation.from_fps(poses_up, trans_up - trans_up[:1], fps,
                                                   name="motion"))  # fmt: skip
+        (staging / KEYFRAMES_FILE).write_bytes(keyframe_atlas(inputs.frames.images))
         write_mp4(staging / "preview" / "overlay.mp4", _even(_overlay(body, inputs, vertices)),
                   fps)  # fmt: skip
         seconds = time.perf_counter() - start

@@ -15,6 +15,7 @@ What the page holds, by what ``path`` is:
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -195,6 +196,11 @@ def _motion_page(folder: Path) -> ViewerPage:
     atlas, keyframes = _keyframes(folder, frames)
     K = np.asarray(m["camera_K"], dtype=np.float64)
     width, height = int(round(2 * K[0, 2])), int(round(2 * K[1, 2]))
+    try:  # the image size (H, W) is in the report; the principal point is a fallback
+        height, width = (int(x) for x in json.loads((folder / "report.json").read_text())
+                         ["input"]["size"])  # fmt: skip
+    except (OSError, ValueError, KeyError, TypeError):
+        pass
     positions = skin.positions
     data = {
         "title": folder.name, "summary": [f"track: {len(frames)} frames at {fps:g} fps"],
