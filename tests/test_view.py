@@ -242,3 +242,36 @@ def test_served_page_and_motion_glb(browser: Browser, folder: Path, tmp_path: Pa
     still = _figure(_show(browser, f"{page.as_uri()}#paused=1&t=0&floor=0"))
     moved = _figure(_show(browser, f"{page.as_uri()}#paused=1&t=0.2&floor=0"))
     assert still.sum() > 5000 and (still ^ moved).sum() > 300
+
+
+def test_view_serves_the_page_until_stopped(folder: Path, tmp_path: Path) -> None:
+    """``monoavatar view OUT --port 0`` prints its address and answers / with the page (and
+    other paths with 404); an older folder without keyframes.jpg shows the orbit view alone."""
+    import shutil
+    import signal
+    import subprocess
+    import sys
+    import urllib.error
+    import urllib.request
+
+    older = tmp_path / "older"
+    shutil.copytree(folder, older)
+    (older / KEYFRAMES_FILE).unlink()
+    assert viewer_page(older, ViewConfig(motions=())).data["keyframes"] is None
+    proc = subprocess.Popen([sys.executable, "-m", "monoavatar.cli", "view", str(older),
+                             "--port", "0", "--no-motions"],
+                            stdout=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        assert proc.stdout is not None
+        line = proc.stdout.readline()
+        assert line.startswith("monoavatar view: http://127.0.0.1:"), line
+        url = line.split()[2]
+        html = urllib.request.urlopen(url, timeout=30).read().decode()
+        assert 'id="data-glb"' in html and "window.MONOAVATAR" in html
+        assert 'id="data-atlas"' not in html
+        with pytest.raises(urllib.error.HTTPError):
+            urllib.request.urlopen(url + "elsewhere", timeout=30)
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=30)
+    assert proc.returncode == 130
