@@ -302,6 +302,9 @@ def _print_summary(report: Report, out: Path) -> None:
         print(f"  surface error against the ground truth: {gt.surface_error_mm:.2f} mm "
               f"after pose and scale alignment ({gt.surface_error_rigid_mm:.2f} mm "
               "after a similarity transform alone)")  # fmt: skip
+        if gt.bone_angle_median_deg is not None:
+            print(f"  rest pose against the ground truth's: bones {gt.bone_angle_median_deg:.1f}° "
+                  f"off (median), {gt.bone_angle_max_deg:.1f}° at worst ({gt.bone_angle_worst})")
     for warning in report.warnings[:5]:
         print(f"  warning: {warning}")
     _print_view_line(out)

@@ -6,7 +6,7 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from monoavatar.bench.metrics import Rig, surface_metrics
+from monoavatar.bench.metrics import Rig, canonical_bone_angles_deg, surface_metrics
 from monoavatar.bench.pose_alignment import align_pose_and_scale
 from monoavatar.eval import SimilarityTransform, bidirectional_surface_error
 from monoavatar.render import vertex_normals
@@ -74,6 +74,14 @@ def test_a_known_pose_is_recovered_and_removed(rigged):
     found = fit.transform.apply(_joints(rig, fit.pose))
     expected = similarity.apply(_joints(rig, pose))
     assert np.linalg.norm(found - expected, axis=1).max() < 0.005
+    # ... and so do the bones' directions, the figure the benchmark reports
+    true_bones = canonical_bone_angles_deg(rig.rest_joints, rig.parents, pose)
+    assert posed.bone_angles_deg is not None
+    arm = [body.joint_index(j) for j in ("elbow_l", "wrist_l", "elbow_r", "wrist_r")]
+    np.testing.assert_allclose(posed.bone_angles_deg[arm], true_bones[arm], atol=2.0)
+    # the shoulder's 10° raise turns the forearm; the elbow's turn about X is a twist of a
+    # forearm that lies along X in the rest A-pose, and turns no bone
+    assert true_bones[body.joint_index("wrist_l")] == pytest.approx(10.0, abs=1.0)
 
 
 @pytest.mark.slow
@@ -90,3 +98,21 @@ def test_shape_differences_are_not_posed_away(rigged):
     exact = bidirectional_surface_error(rest, faces, truth, faces).mean * 1000
     assert rigid.mean_mm > 0.3
     assert posed.mean_mm > 0.8 * min(rigid.mean_mm, exact)
+
+
+def test_bone_angles_closed_form() -> None:
+    """A chain root → a → b → c along +Y: bending ``a`` by 30° about X turns bones b and c by
+    30°, not bone a; a twist of ``a`` about the bone's own axis (Y) turns nothing; the root's
+    own rotation is left out."""
+    rest = np.array([[0, 0, 0], [0, 1, 0], [0, 2, 0], [0, 3, 0]], dtype=float)
+    parents = (-1, 0, 1, 2)
+    pose = np.zeros((4, 3))
+    pose[1] = [np.radians(30), 0, 0]
+    np.testing.assert_allclose(canonical_bone_angles_deg(rest, parents, pose)[1:], [0, 30, 30])
+    pose[1] = [0, np.radians(50), 0]
+    pose[0] = [0.4, 0.2, 0.1]
+    np.testing.assert_allclose(canonical_bone_angles_deg(rest, parents, pose)[1:], 0, atol=1e-6)
+    pose[2] = [0, 0, np.radians(-20)]
+    angles = canonical_bone_angles_deg(rest, parents, pose)
+    assert np.isnan(angles[0])
+    np.testing.assert_allclose(angles[1:], [0, 0, 20], atol=1e-6)

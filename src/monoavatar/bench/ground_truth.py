@@ -33,7 +33,12 @@ def ground_truth_error_map(body: BodyModel, shape: CanonicalShape, truth: SynthG
     metrics, heat = surface_metrics(shape.vertices.double().numpy(), shape.faces.numpy(),
                                  np.asarray(mesh.vertices), np.asarray(mesh.faces),
                                  rig=rig)  # fmt: skip
+    angles = metrics.bone_angles_deg
+    worst = None if angles is None else int(np.nanargmax(angles))
     return GroundTruthSummary(
         surface_error_mm=metrics.mean_mm,
         surface_error_rigid_mm=float(metrics.rigid_mean_mm or metrics.mean_mm),
+        bone_angle_median_deg=None if angles is None else float(np.nanmedian(angles)),
+        bone_angle_max_deg=None if angles is None else float(np.nanmax(angles)),
+        bone_angle_worst=None if worst is None else body.joint_names[worst],
     ), np.asarray(heat.errors, dtype=np.float64)

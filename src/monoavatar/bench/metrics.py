@@ -64,6 +64,7 @@ __all__ = [
     "SubjectTruth",
     "SurfaceMetrics",
     "body_model_name",
+    "canonical_bone_angles_deg",
     "load_truth",
     "surface_metrics",
 ]
@@ -222,6 +223,9 @@ class SurfaceMetrics:
         rigid_normal_error_deg: the same after the similarity alignment alone.
         regions: per region of the truth (``surface_metrics``'s ``regions``), the surface
             error in mm and the normal error in degrees after the full alignment.
+        bone_angles_deg: (J,) how far each bone of the avatar's rest skeleton is from the
+            truth's, degrees (:func:`canonical_bone_angles_deg` of ``aligned_pose``; NaN for
+            the root), None without pose alignment.
     """
 
     mean_mm: float
@@ -237,6 +241,7 @@ class SurfaceMetrics:
     normal_error_deg: float | None = None
     rigid_normal_error_deg: float | None = None
     regions: dict[str, tuple[float, float]] = field(default_factory=dict)
+    bone_angles_deg: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -407,6 +412,32 @@ class Rig:
     parents: tuple[int, ...]
 
 
+def canonical_bone_angles_deg(rest_joints: np.ndarray, parents: tuple[int, ...],
+                              pose: np.ndarray) -> np.ndarray:  # fmt: skip
+    """(J,) the angle, degrees, by which ``pose`` (J, 3) axis-angle turns each bone (parent
+    joint → joint, of the rest skeleton ``rest_joints`` (J, 3)) with the root's own rotation
+    left out; NaN for the root. A bone turns with the product of its ancestors' rotations,
+    ``R_p = R_parent(p) ⋯ R_p``, so its angle is that between ``c_j − c_p`` and
+    ``R_p (c_j − c_p)``: a twist about the bone itself, or a rotation split between a collar
+    and a shoulder, counts as much as it moves the bone, which the joint angles alone do not
+    say (they are not unique)."""
+    from scipy.spatial.transform import Rotation
+
+    local = Rotation.from_rotvec(np.asarray(pose, dtype=np.float64)).as_matrix()
+    local[0] = np.eye(3)
+    world = np.empty_like(local)
+    out = np.full(len(parents), np.nan)
+    for j, p in enumerate(parents):
+        world[j] = local[j] if p < 0 else world[p] @ local[j]
+        if p < 0:
+            continue
+        bone = np.asarray(rest_joints[j], dtype=np.float64) - rest_joints[p]
+        turned = world[p] @ bone
+        cos = bone @ turned / max(float(np.linalg.norm(bone) * np.linalg.norm(turned)), 1e-12)
+        out[j] = float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+    return out
+
+
 def surface_metrics(
     pred_vertices: np.ndarray,
     pred_faces: np.ndarray,
@@ -461,5 +492,7 @@ def surface_metrics(
         normal_error_deg=error.angle,
         rigid_normal_error_deg=rigid_deg,
         regions={name: _mm_deg(error.region(mask)) for name, mask in (regions or {}).items()},
+        bone_angles_deg=None if fit is None or rig is None else canonical_bone_angles_deg(
+            rig.rest_joints, rig.parents, fit.pose),
     )
     return metrics, HeatMap(aligned, np.asarray(pred_faces), error.pred_to_gt)

@@ -228,6 +228,11 @@ def _group(runs: list[RunResult]) -> dict[str, Any]:
     out["surface_error_min_mm"] = float(means.min())
     out["surface_error_max_mm"] = float(means.max())
     out["surface_error_rigid_mm"] = _mean([m.surface.rigid_mean_mm for m in ms])
+    bones = [m.surface.bone_angles_deg for m in ms if m.surface.bone_angles_deg is not None]
+    if bones:  # the rest skeleton against the truth's: subjects' median bones and worst bone
+        out["bone_angle_median_deg"] = float(np.mean([np.nanmedian(b) for b in bones]))
+        out["bone_angle_worst_median_deg"] = float(max(np.nanmedian(b) for b in bones))
+        out["bone_angle_max_deg"] = float(max(np.nanmax(b) for b in bones))
     out["normal_error_deg"] = _mean([m.surface.normal_error_deg for m in ms])
     out["normal_error_rigid_deg"] = _mean([m.surface.rigid_normal_error_deg for m in ms])
     out["regions"] = {

@@ -248,10 +248,15 @@ class TextureSummary:
 @dataclass
 class GroundTruthSummary:
     """For an input with ground truth: the surface error (mm) after pose and scale alignment,
-    and after a similarity transform alone (the benchmark's protocol)."""
+    and after a similarity transform alone (the benchmark's protocol); how far the avatar's
+    rest skeleton's bones are from the truth's (degrees: the median bone, the worst bone and
+    its joint's name; None when not measured)."""
 
     surface_error_mm: float
     surface_error_rigid_mm: float
+    bone_angle_median_deg: float | None = None
+    bone_angle_max_deg: float | None = None
+    bone_angle_worst: str | None = None
 
 
 def _plain(value: Any) -> Any:
