@@ -275,3 +275,16 @@ def test_view_serves_the_page_until_stopped(folder: Path, tmp_path: Path) -> Non
         proc.send_signal(signal.SIGINT)
         proc.wait(timeout=30)
     assert proc.returncode == 130
+
+
+@needs_chromium
+def test_a_paused_page_redraws_when_a_control_changes(browser: Browser, page_file: Path) -> None:
+    image = _show(browser, f"{page_file.as_uri()}#layout=orbit&paused=1&floor=0")
+    browser.evaluate("(() => { const s = document.getElementById('heat'); s.checked = true;"
+                     " s.dispatchEvent(new Event('change')); })()")  # fmt: skip
+    browser.evaluate("new Promise((r) => setTimeout(r, 500))")
+    after = browser.screenshot()
+    figure = _figure(image)
+    blue = np.round(255 * error_to_rgb(np.zeros(1)))[0]
+    assert np.abs(np.median(image[figure], axis=0) - blue).max() > 40  # shaded before
+    np.testing.assert_allclose(np.median(after[_figure(after)], axis=0), blue, atol=12)

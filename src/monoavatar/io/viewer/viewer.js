@@ -3,7 +3,8 @@
 // under orbit controls beside the input frames with the fitted avatar over them.
 // Needs window.THREE (three.min.js, with GLTFLoader and OrbitControls). Settings may be given in
 // the URL's hash: clip=NAME, t=SECONDS, paused=1, shading=albedo|shaded, heat=1, skeleton=1,
-// layout=both|orbit|overlay, floor=0 (no grid), bench=FRAMES (render that many frames, report frames per second).
+// layout=both|orbit|overlay, floor=0 (no grid), aa=0|1 (multisampling; default: on unless WebGL
+// runs in software), bench=FRAMES (render that many frames, report frames per second).
 (function () {
   'use strict';
   const T = window.THREE;
@@ -103,6 +104,18 @@
     return c;
   }
 
+  // Whether WebGL runs in software (SwiftShader, llvmpipe): multisampling there halves the
+  // frame rate (docs/bench/2026-12-03-view-fps.md), so it is left off.
+  function softwareWebgl() {
+    const gl = document.createElement('canvas').getContext('webgl2');
+    if (!gl) return true;
+    const info = gl.getExtension('WEBGL_debug_renderer_info');
+    const name = info ? String(gl.getParameter(info.UNMASKED_RENDERER_WEBGL)) : '';
+    const lose = gl.getExtension('WEBGL_lose_context');
+    if (lose) lose.loseContext();
+    return /swiftshader|llvmpipe|software/i.test(name);
+  }
+
   function addLights(scene) {
     const hemi = new T.HemisphereLight(0xffffff, 0x444444, 1.6);
     const sun = new T.DirectionalLight(0xffffff, 1.8);
@@ -126,7 +139,9 @@
 
     // orbit view
     const orbitPane = document.getElementById('orbit');
-    const orbitRenderer = new T.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
+    const antialias = settings.aa ? settings.aa !== '0' : !softwareWebgl();
+    document.body.dataset.antialias = String(antialias);
+    const orbitRenderer = new T.WebGLRenderer({ antialias, preserveDrawingBuffer: true });
     orbitRenderer.setClearColor(BACKGROUND);
     orbitPane.appendChild(orbitRenderer.domElement);
     const scene = new T.Scene();
@@ -289,11 +304,23 @@
     }
 
     let last = performance.now();
+    // a still scene is drawn again only when something changed (the camera, a control, the
+    // window's size)
+    let dirty = true;
+    const touch = () => { dirty = true; };
+    controls.addEventListener('change', touch);
+    window.addEventListener('resize', touch);
+    for (const el of [select, slider, play, shadingBox, skeletonBox, heatBox]) {
+      el.addEventListener('input', touch);
+      el.addEventListener('change', touch);
+      el.addEventListener('click', touch);
+    }
     function loop(now) {
       if (!state.paused) state.time += (now - last) / 1000;
       last = now;
       controls.update();
-      render();
+      if (!state.paused || dirty) render();
+      dirty = false;
       window.requestAnimationFrame(loop);
     }
 
