@@ -288,3 +288,16 @@ def test_a_paused_page_redraws_when_a_control_changes(browser: Browser, page_fil
     blue = np.round(255 * error_to_rgb(np.zeros(1)))[0]
     assert np.abs(np.median(image[figure], axis=0) - blue).max() > 40  # shaded before
     np.testing.assert_allclose(np.median(after[_figure(after)], axis=0), blue, atol=12)
+
+
+@needs_chromium
+def test_a_large_mesh_moves_as_a_coarse_stand_in(browser: Browser, page_file: Path) -> None:
+    """Above ``lod`` vertices the page draws a clustered copy while the avatar moves: fewer
+    vertices, the same figure (silhouettes agree), no errors."""
+    base = f"{page_file.as_uri()}#layout=orbit&paused=1&t=0&floor=0&clip=wave"
+    full = _figure(_show(browser, base))
+    assert browser.evaluate("document.body.dataset.proxyVertices") is None  # 15k: no stand-in
+    coarse = _figure(_show(browser, base + "&lod=5000&proxy=1"))
+    vertices = int(browser.evaluate("document.body.dataset.proxyVertices"))
+    assert 3000 < vertices < 12000
+    assert (full & coarse).sum() / (full | coarse).sum() > 0.9

@@ -4,7 +4,8 @@
 // Needs window.THREE (three.min.js, with GLTFLoader and OrbitControls). Settings may be given in
 // the URL's hash: clip=NAME, t=SECONDS, paused=1, shading=albedo|shaded, heat=1, skeleton=1,
 // layout=both|orbit|overlay, floor=0 (no grid), aa=0|1 (multisampling; default: on unless WebGL
-// runs in software), bench=FRAMES (render that many frames, report frames per second).
+// runs in software), lod=VERTICES (meshes larger than this move as a coarse stand-in; 60000),
+// bench=FRAMES (render that many frames, report frames per second).
 (function () {
   'use strict';
   const T = window.THREE;
@@ -116,6 +117,53 @@
     return /swiftshader|llvmpipe|software/i.test(name);
   }
 
+  // A coarse stand-in for a large skinned mesh, drawn while it moves (playing, or the camera
+  // being dragged): vertices clustered on a grid of cells (in position and, so that UV seams
+  // stay apart, in texture space), each cluster kept as one of its vertices with its normal,
+  // UV and skin; triangles that collapse are dropped. About ``target`` vertices; null for a
+// mesh of ``threshold`` vertices or fewer.
+  function proxyOf(mesh, threshold, target) {
+    const g = mesh.geometry, P = g.attributes.position, n = P.count;
+    if (n <= threshold) return null;
+    g.computeBoundingBox();
+    const size = new T.Vector3();
+    g.boundingBox.getSize(size);
+    const area = 2 * (size.x * size.y + size.y * size.z + size.z * size.x);
+    const cell = Math.sqrt(area / target) * 0.6;
+    const uv = g.attributes.uv;
+    const keep = new Map(), remap = new Int32Array(n), chosen = [];
+    for (let i = 0; i < n; i++) {
+      let key = Math.floor(P.getX(i) / cell) + ',' + Math.floor(P.getY(i) / cell) + ',' +
+                Math.floor(P.getZ(i) / cell);
+      if (uv) key += ',' + Math.floor(uv.getX(i) * 64) + ',' + Math.floor(uv.getY(i) * 64);
+      let k = keep.get(key);
+      if (k === undefined) { k = chosen.length; keep.set(key, k); chosen.push(i); }
+      remap[i] = k;
+    }
+    const out = new T.BufferGeometry();
+    for (const [name, attr] of Object.entries(g.attributes)) {
+      const items = attr.itemSize, data = new attr.array.constructor(chosen.length * items);
+      for (let k = 0; k < chosen.length; k++) {
+        for (let c = 0; c < items; c++) data[k * items + c] = attr.array[chosen[k] * items + c];
+      }
+      out.setAttribute(name, new T.BufferAttribute(data, items, attr.normalized));
+    }
+    const index = g.index.array, faces = [];
+    for (let f = 0; f < index.length; f += 3) {
+      const a = remap[index[f]], b = remap[index[f + 1]], c = remap[index[f + 2]];
+      if (a !== b && b !== c && a !== c) faces.push(a, b, c);
+    }
+    out.setIndex(faces);
+    const proxy = new T.SkinnedMesh(out, mesh.material);
+    proxy.frustumCulled = false;
+    proxy.position.copy(mesh.position);
+    proxy.quaternion.copy(mesh.quaternion);
+    proxy.scale.copy(mesh.scale);
+    proxy.bind(mesh.skeleton, mesh.bindMatrix);
+    mesh.parent.add(proxy);
+    return proxy;
+  }
+
   function addLights(scene) {
     const hemi = new T.HemisphereLight(0xffffff, 0x444444, 1.6);
     const sun = new T.DirectionalLight(0xffffff, 1.8);
@@ -176,6 +224,11 @@
       mesh.geometry.setAttribute('color', new T.BufferAttribute(colors, 3));
       heat = new T.MeshBasicMaterial({ vertexColors: true });
     }
+
+    // large meshes move as a coarse stand-in (#lod=VERTICES sets the size above which)
+    const proxy = proxyOf(mesh, parseInt(settings.lod || '60000', 10), 25000);
+    if (proxy) document.body.dataset.proxyVertices = String(proxy.geometry.attributes.position.count);
+    let dragging = false;
 
     // overlay: the fitted avatar over the input frame, seen by the input camera
     let overlay = null;
@@ -290,6 +343,12 @@
       slider.value = String(t);
       play.textContent = state.paused ? 'play' : 'pause';
       mesh.material = state.heat ? heat : (state.shading === 'albedo' ? albedo : shaded);
+      if (proxy) {
+        const moving = !state.paused || dragging || settings.proxy === '1';
+        proxy.material = mesh.material;
+        proxy.visible = moving;
+        mesh.visible = !moving;
+      }
       const [w, h] = fit(orbitRenderer, orbitPane, null);
       camera.aspect = w / h;
       camera.updateProjectionMatrix();
@@ -309,6 +368,8 @@
     let dirty = true;
     const touch = () => { dirty = true; };
     controls.addEventListener('change', touch);
+    controls.addEventListener('start', () => { dragging = true; });
+    controls.addEventListener('end', () => { dragging = false; dirty = true; });
     window.addEventListener('resize', touch);
     for (const el of [select, slider, play, shadingBox, skeletonBox, heatBox]) {
       el.addEventListener('input', touch);
