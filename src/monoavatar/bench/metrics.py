@@ -357,6 +357,10 @@ class SubjectMetrics:
             "pose_aligned": self.surface.pose_aligned,
             "normal_error_deg": self.surface.normal_error_deg,
             "normal_error_rigid_deg": self.surface.rigid_normal_error_deg,
+            "bone_angle_median_deg": None if self.surface.bone_angles_deg is None
+            else float(np.nanmedian(self.surface.bone_angles_deg)),
+            "bone_angle_max_deg": None if self.surface.bone_angles_deg is None
+            else float(np.nanmax(self.surface.bone_angles_deg)),
             "regions": {name: {"surface_error_mm": mm, "normal_error_deg": deg}
                         for name, (mm, deg) in self.surface.regions.items()},
             "body_only_error_mm": self.body_only_mm,

@@ -504,17 +504,21 @@ def render_markdown(results: BenchResults) -> str:
         "## Per subject",
         "",
         "| subject | clothing | mode | surface (mm) | rigid only (mm) | body only (mm) | "
-        "PA-MPJPE (mm) | IoU | PSNR (dB) | PSNR, true poses (dB) | time (s) | heat map |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "rest bones, median / worst (°) | PA-MPJPE (mm) | IoU | PSNR (dB) | "
+        "PSNR, true poses (dB) | time (s) | heat map |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in results.runs:
         s = r.subject
         if r.status != "ok" or r.metrics is None:
             lines.append(f"| {s.name} | {s.clothing} | {r.mode} | failed: "
                          f"{(r.error or '').splitlines()[0][:80] if r.error else ''} "
-                         "| | | | | | | | |")  # fmt: skip
+                         "| | | | | | | | | |")  # fmt: skip
             continue
         mt = r.metrics
+        bones = mt.surface.bone_angles_deg
+        bone_cell = ("–" if bones is None else
+                     f"{np.nanmedian(bones):.1f} / {np.nanmax(bones):.1f}")  # fmt: skip
         heat = "–"
         if r.heatmap_png is not None:
             try:
@@ -524,7 +528,7 @@ def render_markdown(results: BenchResults) -> str:
         lines.append(
             f"| {s.name} | {s.clothing} | {r.mode} | {mt.surface.mean_mm:.2f} ± "
             f"{mt.surface.std_mm:.2f} | {_fmt(mt.surface.rigid_mean_mm)} | "
-            f"{_fmt(mt.body_only_mm)} | {mt.pa_mpjpe_mm:.1f} | "
+            f"{_fmt(mt.body_only_mm)} | {bone_cell} | {mt.pa_mpjpe_mm:.1f} | "
             f"{mt.silhouette_iou:.3f} | {_fmt(mt.psnr_db, 1)} | "
             f"{_fmt(mt.psnr_true_poses_db, 1)} | {r.wall_seconds:.0f} | {heat} |"
         )
