@@ -291,7 +291,8 @@ def _run_reconstruct(args: argparse.Namespace) -> int:
 def _print_summary(report: Report, out: Path) -> None:
     fit = report.fit
     print(f"avatar written to {out}/")
-    print("  avatar.glb  avatar.obj  texture.png  params.npz  report.json  preview/")
+    print("  avatar.glb  avatar.obj  texture.png  params.npz  report.json  keyframes.jpg  preview/"
+          + ("  ground_truth.npz" if report.ground_truth is not None else ""))
     print(f"  key-frames: {report.input.frames}  failed: {int(sum(fit.failed))}  "
           f"median silhouette IoU: {fit.median_silhouette_iou:.3f}")  # fmt: skip
     print(f"  height: {report.scale.height_m:.3f} m ({report.scale.note})")
@@ -572,7 +573,8 @@ def _run_photo(args: argparse.Namespace) -> int:
     result = photo(args.input, args.output, config)
     report = result.report
     print(f"avatar written to {result.folder}/")
-    print("  avatar.glb  avatar.obj  texture.png  params.npz  maps/  preview/  report.json")
+    print("  avatar.glb  avatar.obj  texture.png  params.npz  maps/  preview/  report.json  "
+          "keyframes.jpg")
     fit = report.fit
     print(f"  fit: silhouette IoU {fit.median_silhouette_iou:.2f}, keypoint error "
           f"{fit.keypoint_error_px[0]:.1f} px; height {report.scale.height_m:.2f} m "
