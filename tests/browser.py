@@ -150,3 +150,18 @@ class Browser:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def show_page(path: Any, settings: str = "", width: int = 900, height: int = 500) -> np.ndarray:
+    """Open the viewer page file ``path`` with the hash ``settings`` in a fresh browser, check
+    that it gets ready without console errors, and return its screenshot; skips the calling
+    test where no chromium is installed."""
+    import pytest
+
+    if CHROMIUM is None:
+        pytest.skip("no chromium on PATH (the README's test command installs it)")
+    with Browser(width, height) as browser:
+        state = browser.open(f"{path.as_uri()}#{settings}")
+        errors = [c for c in browser.console if c[0] in ("error", "exception", "assert")]
+        assert state == "ready" and not errors, (state, errors)
+        return browser.screenshot()

@@ -149,7 +149,7 @@ def test_a_frame_range_tracks_only_those_frames(walk: Path, tmp_path: Path, caps
 def test_view_shows_the_tracked_motion_over_the_frames(tracked: Path, tmp_path: Path) -> None:
     from monoavatar.io.viewer_page import split_atlas, write_page
     from monoavatar.pipelines.view import viewer_page
-    from tests.browser import CHROMIUM, Browser
+    from tests.browser import show_page
 
     page = viewer_page(tracked)
     with np.load(tracked / "motion.npz") as m:
@@ -161,12 +161,6 @@ def test_view_shows_the_tracked_motion_over_the_frames(tracked: Path, tmp_path: 
     assert (page.data["camera"]["width"], page.data["camera"]["height"]) == (256, 256)
     first = np.asarray(fitted["rotations"][next(iter(fitted["rotations"]))]).reshape(-1, 4)
     assert first.shape == (len(poses), 4)
-    if CHROMIUM is None:
-        pytest.skip("no chromium on PATH (the README's test command installs it)")
-    path = write_page(tmp_path / "motion.html", page)
-    with Browser(900, 500) as browser:
-        assert browser.open(f"{path.as_uri()}#paused=1&t=0.2") == "ready"
-        assert not [c for c in browser.console if c[0] in ("error", "exception")]
-        shot = browser.screenshot()
-        # the overlay pane shows the frame (not the page's background) with the avatar on it
-        assert np.abs(shot[100:, :450].astype(int) - (0x16, 0x18, 0x1B)).max(-1).mean() > 20
+    shot = show_page(write_page(tmp_path / "motion.html", page), "paused=1&t=0.2")
+    # the overlay pane shows the frame (not the page's background) with the avatar on it
+    assert np.abs(shot[100:, :450].astype(int) - (0x16, 0x18, 0x1B)).max(-1).mean() > 20
