@@ -28,10 +28,15 @@ from tests.browser import Browser  # noqa: E402
 
 from monoavatar.body import load_body_model  # noqa: E402
 from monoavatar.body.subdivide import subdivide  # noqa: E402
-from monoavatar.io.gltf import SkinnedMesh, glb_bytes, skinned_mesh_from_body  # noqa: E402
+from monoavatar.io.gltf import (  # noqa: E402
+    SkinnedMesh,
+    glb_bytes,
+    read_glb_skin,
+    skinned_mesh_from_body,
+)
 from monoavatar.io.viewer_page import ViewerPage, write_page  # noqa: E402
 from monoavatar.pipelines.motions import walk_motion  # noqa: E402
-from monoavatar.pipelines.view import motion_clip  # noqa: E402
+from monoavatar.pipelines.view import motion_clip, page_data  # noqa: E402
 
 
 def _subdivided(mesh: SkinnedMesh, levels: int) -> SkinnedMesh:
@@ -62,13 +67,10 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp, Browser(1200, 700) as browser:
         for levels in (0, 1, 2):
             mesh = _subdivided(base, levels)
-            data = {"title": f"bench {levels}", "summary": [], "height_m": 1.7,
-                    "floor_y": float(mesh.vertices[:, 1].min()),
-                    "clips": [motion_clip("walk", walk, mesh.joint_names, world=False)],
-                    "upright": np.eye(3).tolist(), "center": [0.0, 0.0, 0.0], "camera": None,
-                    "keyframes": None, "heat": None}  # fmt: skip
-            page = write_page(Path(tmp) / f"page{levels}.html",
-                              ViewerPage(glb_bytes(mesh), data))  # fmt: skip
+            glb = glb_bytes(mesh)
+            data = page_data(f"bench {levels}", [], read_glb_skin(glb),
+                             [motion_clip("walk", walk, mesh.joint_names, world=False)])
+            page = write_page(Path(tmp) / f"page{levels}.html", ViewerPage(glb, data))
             start = time.monotonic()
             state = browser.open(f"{page.as_uri()}#layout=orbit&bench={args.frames}{args.hash}",
                                  timeout=600)  # fmt: skip

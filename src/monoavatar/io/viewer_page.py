@@ -41,8 +41,9 @@ from PIL import Image
 
 from monoavatar.core.files import atomic_write_text
 
-__all__ = ["ATLAS_TILE_HEIGHT", "ViewerPage", "atlas_grid", "keyframe_atlas", "page_html",
-           "serve_page", "split_atlas"]  # fmt: skip
+__all__ = ["ATLAS_PIXELS", "ATLAS_TILE_HEIGHT", "ViewerPage", "atlas_grid", "keyframe_atlas",
+           "page_html", "serve_in_background", "serve_page", "split_atlas",
+           "write_page"]  # fmt: skip
 
 ATLAS_TILE_HEIGHT = 240
 """Height (pixels) of one key-frame in ``keyframes.jpg``, at most."""

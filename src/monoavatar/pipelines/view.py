@@ -15,6 +15,7 @@ What the page holds, by what ``path`` is:
 
 from __future__ import annotations
 
+import io
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,11 +32,17 @@ from monoavatar.io.avatar_folder import (
     AvatarFolder,
     AvatarFolderError,
 )
-from monoavatar.io.gltf import GltfExportError, PoseAnimation, axis_angle_quaternions, read_glb_skin
+from monoavatar.io.gltf import (
+    GlbSkin,
+    GltfExportError,
+    PoseAnimation,
+    axis_angle_quaternions,
+    read_glb_skin,
+)
 from monoavatar.io.viewer_page import ViewerPage, atlas_grid
 from monoavatar.pipelines.motions import MOTIONS, builtin_motion
 
-__all__ = ["FITTED_FPS", "ViewConfig", "motion_clip", "viewer_page"]
+__all__ = ["FITTED_FPS", "ViewConfig", "motion_clip", "page_data", "viewer_page"]
 
 FITTED_FPS = 30.0
 """Source frames a second assumed when timing the fitted key-frames (the folder does not keep
@@ -91,6 +98,26 @@ def _center(up: np.ndarray, translations: np.ndarray, rest_root: np.ndarray,
     return [float(x) for x in center]
 
 
+def page_data(title: str, summary: list[str], skin: GlbSkin, clips: list[dict[str, Any]], *,
+              height_m: float | None = None, up: np.ndarray | None = None,
+              translations: np.ndarray | None = None, camera: dict[str, Any] | None = None,
+              keyframes: dict[str, Any] | None = None, heat: dict[str, Any] | None = None,
+              ) -> dict[str, Any]:  # fmt: skip
+    """``window.MONOAVATAR`` (:mod:`monoavatar.io.viewer_page`) for a glb's ``skin``: the floor
+    and the height from its rest mesh (``height_m`` overrides), the world clips turned by ``up``
+    (3,) (None: Y-up) and centred on the root's mean over ``translations`` (N, 3) metres."""
+    floor = float(skin.positions[:, 1].min())
+    world_up = np.array([0.0, 1.0, 0.0]) if up is None else np.asarray(up, dtype=np.float64)
+    center = ([0.0, 0.0, 0.0] if translations is None else
+              _center(world_up, translations, skin.rest_root, float(skin.rest_root[1] - floor)))
+    return {
+        "title": title, "summary": summary, "clips": clips, "floor_y": floor,
+        "height_m": float(np.ptp(skin.positions[:, 1])) if height_m is None else height_m,
+        "upright": upright_rotation(world_up).tolist(), "center": center, "camera": camera,
+        "keyframes": keyframes, "heat": heat,
+    }  # fmt: skip
+
+
 def _read_glb(path: Path) -> bytes:
     if not path.is_file():
         raise InputNotFoundError(path, "no glb to show")
@@ -105,7 +132,7 @@ def _keyframes(folder: Path, indices: np.ndarray) -> tuple[bytes | None, dict[st
 
     payload = atlas_path.read_bytes()
     try:
-        with Image.open(atlas_path) as image:
+        with Image.open(io.BytesIO(payload)) as image:
             width, height = image.size
     except OSError as exc:
         raise AvatarFolderError(atlas_path, f"not an image ({exc})") from exc
@@ -139,7 +166,7 @@ def _heat(folder: Path, vertices: np.ndarray, positions: np.ndarray, max_mm: flo
 
 
 def _avatar_page(folder: Path, config: ViewConfig) -> ViewerPage:
-    avatar = AvatarFolder.load(folder)
+    avatar = AvatarFolder.load(folder, mesh=(folder / GROUND_TRUTH_FILE).is_file())
     p, report = avatar.params, avatar.report
     glb = _read_glb(folder / "avatar.glb")
     skin = read_glb_skin(glb)
@@ -157,7 +184,6 @@ def _avatar_page(folder: Path, config: ViewConfig) -> ViewerPage:
         for name in config.motions:
             motion = builtin_motion(body, name)
             clips.append(motion_clip(name, motion, skin.joint_names, world=False))
-    rest_root = skin.rest_root
     atlas, keyframes = _keyframes(folder, p.frame_indices)
     heat, heat_info = _heat(folder, avatar.vertices, skin.positions, config.max_error_mm)
     summary = [f"{report.input.kind} input, {report.input.frames} key-frames",
@@ -167,15 +193,10 @@ def _avatar_page(folder: Path, config: ViewConfig) -> ViewerPage:
     if report.ground_truth is not None:
         summary.append(f"surface error {report.ground_truth.surface_error_mm:.2f} mm")
     cam = p.camera
-    data = {
-        "title": folder.name, "summary": summary, "height_m": p.height_m, "clips": clips,
-        "floor_y": float(skin.positions[:, 1].min()),
-        "upright": upright_rotation(p.world_up).tolist(),
-        "center": _center(p.world_up, p.translations, rest_root,
-                          float(rest_root[1] - avatar.vertices[:, 1].min())),
-        "camera": _camera(cam.K, cam.R, cam.t, cam.width, cam.height),
-        "keyframes": keyframes, "heat": heat_info,
-    }  # fmt: skip
+    data = page_data(folder.name, summary, skin, clips, height_m=p.height_m, up=p.world_up,
+                     translations=p.translations,
+                     camera=_camera(cam.K, cam.R, cam.t, cam.width, cam.height),
+                     keyframes=keyframes, heat=heat_info)  # fmt: skip
     return ViewerPage(glb, data, atlas, heat)
 
 
@@ -201,17 +222,11 @@ def _motion_page(folder: Path) -> ViewerPage:
                          ["input"]["size"])  # fmt: skip
     except (OSError, ValueError, KeyError, TypeError):
         pass
-    positions = skin.positions
-    data = {
-        "title": folder.name, "summary": [f"track: {len(frames)} frames at {fps:g} fps"],
-        "height_m": float(np.ptp(positions[:, 1])), "floor_y": float(positions[:, 1].min()),
-        "clips": [motion_clip("fitted", fitted, skin.joint_names, world=True)],
-        "upright": upright_rotation(m["world_up"]).tolist(),
-        "center": _center(m["world_up"], m["translations"], skin.rest_root,
-                          float(skin.rest_root[1] - positions[:, 1].min())),
-        "camera": _camera(K, m["camera_R"], m["camera_t"], width, height),
-        "keyframes": keyframes, "heat": None,
-    }  # fmt: skip
+    data = page_data(folder.name, [f"track: {len(frames)} frames at {fps:g} fps"], skin,
+                     [motion_clip("fitted", fitted, skin.joint_names, world=True)],
+                     up=m["world_up"], translations=m["translations"],
+                     camera=_camera(K, m["camera_R"], m["camera_t"], width, height),
+                     keyframes=keyframes)  # fmt: skip
     return ViewerPage(glb, data, atlas, None)
 
 
@@ -238,12 +253,8 @@ def viewer_page(path: str | Path, config: ViewConfig | None = None) -> ViewerPag
             raise AvatarFolderError(path, str(exc)) from exc
         if not skin.animations:
             raise AvatarFolderError(path, "the glb holds no animation to play")
-        data = {"title": path.name, "summary": [f"{path.name}: {', '.join(skin.animations)}"],
-                "height_m": float(np.ptp(skin.positions[:, 1])), "clips": [],
-                "floor_y": float(skin.positions[:, 1].min()),
-                "upright": np.eye(3).tolist(), "center": [0.0, 0.0, 0.0], "camera": None,
-                "keyframes": None, "heat": None}  # fmt: skip
-        return ViewerPage(glb, data)
+        summary = [f"{path.name}: {', '.join(skin.animations)}"]
+        return ViewerPage(glb, page_data(path.name, summary, skin, []))
     if (path / "params.npz").is_file():
         return _avatar_page(path, config)
     if (path / "motion.npz").is_file():
