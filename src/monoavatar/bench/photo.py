@@ -78,7 +78,8 @@ def run_photo_bench(out_dir: str | Path, *, quick: bool = False, progress: bool 
     from PIL import Image
 
     from monoavatar.body import load_body_model
-    from monoavatar.learn.photo_data import PhotoDataSettings, iter_seeds, render_photo
+    from monoavatar.learn.photo_data import PhotoDataSettings, render_photo
+    from monoavatar.learn.shards import iter_seeds
     from monoavatar.pipelines.photo import PhotoConfig, photo
 
     out = Path(out_dir)

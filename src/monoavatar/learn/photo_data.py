@@ -23,8 +23,6 @@ subject.
 
 from __future__ import annotations
 
-import json
-from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -35,6 +33,7 @@ from torch import Tensor
 from monoavatar.body import BodyModel, lbs
 from monoavatar.core.camera import PinholeCamera
 from monoavatar.core.errors import MonoavatarError
+from monoavatar.learn.shards import ShardError, generate_shards
 from monoavatar.learn.uvmaps import UVLayout, displacement_targets, rasterise_vertex_values
 from monoavatar.synth.options import BACKGROUNDS, NOISE_LEVELS
 from monoavatar.synth.scene import degrade, make_background, render_frame
@@ -381,24 +380,6 @@ class PhotoDataset(torch.utils.data.Dataset[dict[str, Tensor]]):
                 "weight": torch.from_numpy(self.weights[i].astype(np.float32))}  # fmt: skip
 
 
-def shard_paths(folder: Path, split: str) -> list[Path]:
-    return sorted(folder.glob(f"{split}-*.npz"))
-
-
-def iter_seeds(split: str, count: int) -> Iterator[int]:
-    """Disjoint seed ranges: train from 0, validation from 10⁶, test from 2·10⁶."""
-    base = {"train": 0, "val": 1_000_000, "test": 2_000_000}[split]
-    return iter(range(base, base + count))
-
-
-def save_settings(path: Path, settings: PhotoDataSettings, fit_error: FitError) -> None:
-    """``data.json``: the format, the data settings and the fit error sampled from."""
-    from monoavatar.core.files import atomic_write_text
-
-    atomic_write_text(path, json.dumps({"format": FORMAT, "settings": asdict(settings),
-                                        "fit_error": fit_error.to_json()}, indent=1))
-
-
 def _write_shard_of(folder: str, split: str, index: int, seeds: list[int],
                     settings: PhotoDataSettings, fit_error: FitError) -> str:  # fmt: skip
     """Make and write one shard (run in a worker process: it loads its own body models)."""
@@ -425,42 +406,14 @@ def generate_photo_data(folder: str | Path, counts: dict[str, int], settings: Ph
                         fit_error: FitError, workers: int = 2, progress: bool = True
                         ) -> dict[str, list[Path]]:  # fmt: skip
     """Write ``counts[split]`` samples of each split ("train", "val", "test") as shards
-    ``SPLIT-NNNN.npz`` into ``folder``, with ``data.json`` (settings and fit error). Shards
-    already there (from an interrupted run) are kept, so generation resumes; each shard is
-    written atomically. Returns the shard paths per split."""
-    from concurrent.futures import ProcessPoolExecutor
-    from multiprocessing import get_context
-
-    from tqdm import tqdm
-
+    ``SPLIT-NNNN.npz`` into ``folder``, with ``data.json`` (format, settings and fit error),
+    resumably (:func:`~monoavatar.learn.shards.generate_shards`). Returns the shard paths per
+    split."""
     settings.validate()
-    out = Path(folder)
-    out.mkdir(parents=True, exist_ok=True)
-    meta = out / "data.json"
-    record = {"format": FORMAT, "settings": json.loads(json.dumps(asdict(settings))),
-              "fit_error": fit_error.to_json()}  # fmt: skip
-    if meta.is_file():
-        old = json.loads(meta.read_text())
-        if old.get("settings") != record["settings"] or old.get("fit_error") != record[
-                "fit_error"]:  # fmt: skip
-            raise PhotoDataError(f"{out} holds data made with other settings; use another "
-                                 "folder or delete it")  # fmt: skip
-    else:
-        save_settings(meta, settings, fit_error)
-    jobs = []
-    for split, count in counts.items():
-        seeds = list(iter_seeds(split, count))
-        for k in range(0, count, SHARD):
-            if not (out / f"{split}-{k // SHARD:04d}.npz").is_file():
-                jobs.append((split, k // SHARD, seeds[k : k + SHARD]))
-    total = sum(len(j[2]) for j in jobs)
-    bar = tqdm(total=total, desc="photo data", unit="sample", disable=not progress)
-    if jobs:
-        with ProcessPoolExecutor(max(1, workers), mp_context=get_context("spawn")) as pool:
-            futures = [pool.submit(_write_shard_of, str(out), split, index, seeds, settings,
-                                   fit_error) for split, index, seeds in jobs]  # fmt: skip
-            for future, job in zip(futures, jobs, strict=True):
-                future.result()
-                bar.update(len(job[2]))
-    bar.close()
-    return {split: shard_paths(out, split) for split in counts}
+    record = {"format": FORMAT, "settings": asdict(settings), "fit_error": fit_error.to_json()}
+    try:
+        return generate_shards(folder, record, counts, _write_shard_of, (settings, fit_error),
+                               shard=SHARD, workers=workers, progress=progress,
+                               desc="photo data")  # fmt: skip
+    except ShardError as exc:
+        raise PhotoDataError(str(exc)) from exc
