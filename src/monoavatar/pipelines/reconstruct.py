@@ -24,20 +24,12 @@ import torch
 
 from monoavatar.body import BodyModel, load_body_model
 from monoavatar.fit.flow_refine import FlowRefineSettings
-from monoavatar.fit.pose import PoseSettings, PoseTrack, evaluate_fit, world_up
+from monoavatar.fit.pose import PoseSettings, PoseTrack
 from monoavatar.fit.shape import CanonicalShape, ShapeSettings
 from monoavatar.io.avatar_folder import (
-    KEYFRAMES_FILE,
-    AvatarFolder,
-    AvatarParams,
-    FitSummary,
-    InputSummary,
     Report,
-    ScaleSummary,
-    TextureSummary,
 )
-from monoavatar.io.viewer_page import keyframe_atlas
-from monoavatar.pipelines.previews import previews
+from monoavatar.pipelines.export import avatar_folder, reconstruction_report
 from monoavatar.pipelines.stages import (
     PERCEPTION,
     POSES,
@@ -48,7 +40,6 @@ from monoavatar.pipelines.stages import (
     flow_stage,
     kept_warnings,
     load_inputs,
-    machine,
     output_folder,
     pose_stage,
     refine_stage,
@@ -188,61 +179,6 @@ def fit_avatar(body: BodyModel, inputs: Inputs, config: ReconstructConfig, timer
     return track, shape, texture, sh
 
 
-# -- report and export ------------------------------------------------------------------------
-
-
-def _report(input_path: str | Path, body: BodyModel, inputs: Inputs, track: PoseTrack,
-            shape: CanonicalShape, texture: UVTexture, config: ReconstructConfig,
-            caught: list[str], timings: dict[str, float]) -> Report:  # fmt: skip
-    height = float(np.ptp(shape.vertices[:, 1].double().numpy()))
-    obs = inputs.observations
-    good = ~track.failed
-    kp_err, iou = evaluate_fit(body, shape.shape, track.poses, track.translations, obs,
-                               offsets=shape.offsets)  # fmt: skip
-    given = config.pose.height is not None
-    return Report(
-        input=InputSummary(path=str(input_path), kind=inputs.kind, frames=len(obs),
-                           frame_indices=np.asarray(obs.frame_indices).tolist(),
-                           image_size=list(obs.image_size[::-1]),
-                           keypoints=obs.keypoint_source),  # fmt: skip
-        settings=asdict(config),
-        scale=ScaleSummary(
-            known=bool(given or config.input.poses == "ground-truth"), height_m=height,
-            note=("metric: the given height" if given else
-                  "up to scale: no --height given; the body keeps an average height"),
-        ),  # fmt: skip
-        fit=FitSummary(
-            keypoint_error_px=kp_err.tolist(), silhouette_iou=iou.tolist(),
-            failed=track.failed.tolist(), pose_energy=np.asarray(track.energy).tolist(),
-            median_silhouette_iou=float(np.median(iou[good])) if good.any() else 0.0,
-        ),  # fmt: skip
-        texture=TextureSummary(albedo=texture.albedo, size=texture.size,
-                               coverage=float(texture.coverage[texture.chart].mean())),
-        warnings=caught,
-        machine=machine(),
-        timings=timings,
-    )
-
-
-def avatar_folder(body: BodyModel, inputs: Inputs, track: PoseTrack, shape: CanonicalShape,
-                  texture: UVTexture, sh: np.ndarray, report: Report) -> AvatarFolder:  # fmt: skip
-    """The avatar folder of a finished reconstruction (previews rendered)."""
-    cam = track.camera
-    params = AvatarParams(
-        body_model=body.identity, shape=shape.shape.double().numpy(),
-        offsets=shape.offsets.double().numpy(), poses=track.poses,
-        translations=track.translations, frame_indices=inputs.observations.frame_indices,
-        camera=cam, world_up=world_up(cam), height_m=report.scale.height_m,
-        scale_known=report.scale.known, lighting_sh=sh,
-    )  # fmt: skip
-    return AvatarFolder(
-        params, report, shape.vertices.double().numpy(), body.faces.numpy(),
-        uv=body.uv.double().numpy(), face_uv=body.face_uv.numpy(), texture=texture.image,
-        previews=previews(body, inputs, track, shape, texture, sh),
-        extras={KEYFRAMES_FILE: keyframe_atlas(inputs.frames.images)},
-    )  # fmt: skip
-
-
 # -- the pipeline -----------------------------------------------------------------------------
 
 
@@ -278,8 +214,9 @@ def _reconstruct(input_path: str | Path, out: Path, config: ReconstructConfig
         track, shape, texture, sh = fit_avatar(body, inputs, config, timer)
     caught = [f"{record.category.__name__}: {record.message}" for record in records]
     timings = timer.seconds
-    report = _report(input_path, body, inputs, track, shape, texture, config, caught,
-                     dict(timings))  # fmt: skip
+    report = reconstruction_report(
+        input_path, body, inputs, track, shape, texture, asdict(config), caught, dict(timings),
+        scale_known=config.pose.height is not None or config.input.poses == "ground-truth")
     with timer("export"):
         folder = avatar_folder(body, inputs, track, shape, texture, sh, report)
         glb = skinned_mesh_from_body(body, shape.shape.double().numpy(),
