@@ -28,6 +28,7 @@ from monoavatar.core.errors import InputWarning, MonoavatarError
 if TYPE_CHECKING:
     from monoavatar.body import BodyModel
     from monoavatar.io.avatar_folder import Report
+    from monoavatar.pipelines.fast import FastConfig, FastResult
     from monoavatar.pipelines.reconstruct import ReconstructConfig, ReconstructResult
     from monoavatar.pipelines.stages import Inputs
 
@@ -221,6 +222,7 @@ def _config(args: argparse.Namespace, **options: Any) -> ReconstructConfig:
 
 
 def _add_reconstruct(p: argparse.ArgumentParser) -> None:
+    from monoavatar.pipelines.fast import FAST_MAX_FRAMES, FastConfig
     from monoavatar.pipelines.reconstruct import ReconstructConfig
     from monoavatar.pipelines.stages import POSES
     from monoavatar.texture.backproject import METHODS, TextureSettings
@@ -261,10 +263,18 @@ def _add_reconstruct(p: argparse.ArgumentParser) -> None:
             "rounding between runs, with any count)", type=int, metavar="N")  # fmt: skip
     _option(p, "--model", ReconstructConfig, "body_model",
             "body model: anny or a path to your SMPL .npz/.pkl")  # fmt: skip
+    p.add_argument("--fast", action="store_true",
+                   help="predict the shape and poses from 1-8 key-frames with the few-frame "
+                   f"network (Paper D) instead of fitting them: seconds instead of minutes "
+                   f"(--frames defaults to {FAST_MAX_FRAMES}; --poses, --no-offsets, --refine-"
+                   "rounds, --flow-rounds and --model do not apply)")  # fmt: skip
+    _option(p, "--weights", FastConfig, "weights", "with --fast: a few-frame network "
+            "weights file (from 'monoavatar train fast'; default: the shipped weights)",
+            metavar="FILE")  # fmt: skip
     p.set_defaults(run=_run_reconstruct)
 
 
-def _with_ground_truth(result: ReconstructResult) -> None:
+def _with_ground_truth(result: ReconstructResult | FastResult, body: BodyModel) -> None:
     """For a synth input: the surface error against its ground truth, into report.json, and
     each vertex's, into ground_truth.npz (the heat map of ``monoavatar view``)."""
     from monoavatar.bench.ground_truth import ground_truth_error_map
@@ -274,16 +284,45 @@ def _with_ground_truth(result: ReconstructResult) -> None:
     truth = result.inputs.ground_truth
     if truth is None:
         return
-    result.report.ground_truth, errors = ground_truth_error_map(result.body, result.shape, truth)
+    result.report.ground_truth, errors = ground_truth_error_map(body, result.shape, truth)
     atomic_write_npz(result.out_dir / GROUND_TRUTH_FILE, vertex_error_m=errors)
     result.report.write(result.out_dir / "report.json")
 
 
+def _fast_config(args: argparse.Namespace) -> FastConfig:
+    """The :class:`FastConfig` of ``reconstruct --fast``'s options (``--frames`` left at the
+    full pipeline's default means the network's eight)."""
+    from monoavatar.pipelines.fast import FAST_MAX_FRAMES, FastConfig
+    from monoavatar.pipelines.stages import InputSettings
+    from monoavatar.texture.backproject import TextureSettings
+
+    base = _config(args)
+    if args.pose_source != "fit":
+        raise CliError("--poses ground-truth does not apply to --fast")
+    frames = args.frames
+    if frames == _default(InputSettings, "frames"):
+        frames = FAST_MAX_FRAMES
+    return FastConfig(input=replace(base.input, frames=frames), height=args.height,
+                      weights=args.weights, device=args.device,
+                      texture=replace(TextureSettings(), size=args.texture_size,
+                                      method=args.texture_method, workers=args.workers),
+                      progress=not args.quiet)  # fmt: skip
+
+
 def _run_reconstruct(args: argparse.Namespace) -> int:
+    from monoavatar.body import load_body_model
+    from monoavatar.pipelines.fast import fast_reconstruct
     from monoavatar.pipelines.reconstruct import reconstruct
 
+    if args.fast:
+        fast = fast_reconstruct(args.input, args.output, _fast_config(args))
+        _with_ground_truth(fast, load_body_model("anny"))
+        _print_summary(fast.report, fast.out_dir)
+        return 0
+    if args.weights is not None:
+        raise CliError("--weights applies to --fast only")
     result = reconstruct(args.input, args.output, _config(args))
-    _with_ground_truth(result)
+    _with_ground_truth(result, result.body)
     _print_summary(result.report, result.out_dir)
     return 0
 
@@ -587,17 +626,66 @@ def _run_photo(args: argparse.Namespace) -> int:
 
 
 def _add_train(p: argparse.ArgumentParser) -> None:
+    p.description = ("Train a learned part from data made by our own synth: 'photo' (the "
+                     "single-image network of 'monoavatar photo') or 'fast' (the few-frame "
+                     "network of 'monoavatar reconstruct --fast'). Every step resumes from "
+                     "what the output folder already holds.")
+    parts = p.add_subparsers(dest="what", required=True, metavar="{photo,fast}")
+    _add_train_photo(parts.add_parser("photo", help="the photo network (Paper E)"))
+    _add_train_fast(parts.add_parser("fast", help="the few-frame network (Paper D)"))
+
+
+def _add_train_fast(p: argparse.ArgumentParser) -> None:
+    from monoavatar.learn.fast_train import FastTrainConfig
+
+    p.description = (
+        "Make synthetic turn-around subjects (masks and keypoints as perception gives them, "
+        "and their true shape, offsets and poses), train the few-frame network on 1-8 of "
+        "their frames at a time, and write OUT/fast.safetensors (use it with 'monoavatar "
+        "reconstruct --fast --weights', or copy it to monoavatar/learn/weights/). Every step "
+        "resumes from what OUT already holds.")
+    p.add_argument("-o", "--output", required=True, type=Path, help="working folder")
+    _option(p, "--subjects", FastTrainConfig, "subjects", "training subjects", type=int)
+    _option(p, "--val", FastTrainConfig, "val", "validation subjects", type=int)
+    _option(p, "--steps", FastTrainConfig, "steps", "optimiser steps", type=int)
+    _option(p, "--batch", FastTrainConfig, "batch", "subjects per step", type=int)
+    _option(p, "--seed", FastTrainConfig, "seed", "training seed", type=int)
+    _option(p, "--device", FastTrainConfig, "device", "where to train", choices=("cpu", "cuda"))
+    _option(p, "--workers", FastTrainConfig, "workers", "processes making the data", type=int)
+    _option(p, "--max-minutes", FastTrainConfig, "max_minutes", "stop training after this "
+            "many minutes (resume by running the command again)", type=float)  # fmt: skip
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(run=_run_train_fast)
+
+
+def _run_train_fast(args: argparse.Namespace) -> int:
+    from monoavatar.learn.fast_train import FastTrainConfig, train_fast
+
+    config = FastTrainConfig(subjects=args.subjects, val=args.val, steps=args.steps,
+                             batch=args.batch, seed=args.seed, device=args.device,
+                             workers=args.workers, max_minutes=args.max_minutes,
+                             progress=not args.quiet)  # fmt: skip
+    result = train_fast(args.output, config)
+    state = "finished" if result.finished else "stopped (run again to resume)"
+    print(f"training {state} after {result.steps_done} steps"
+          + (f"; weights: {result.weights}" if result.finished else ""))
+    for key, value in result.validation.items():
+        print(f"  {key}: {value:.2f}")
+    print(f"  log: {args.output / 'train' / 'log.jsonl'}")
+    return 0
+
+
+def _add_train_photo(p: argparse.ArgumentParser) -> None:
     from monoavatar.learn.photo_train import PhotoTrainConfig
     from monoavatar.learn.training import TrainSettings
 
     p.description = (
-        "Train a learned part from data made by our own synth. 'photo': measure the "
+        "Measure the "
         "single-image fitter's error on synthetic photos, make training photos with exact UV "
         "maps (the partial texture built from poses perturbed as the fitter errs), train the "
         "photo network (U-Net, MS-DSSIM + L1 + a small PatchGAN term) and write "
         "OUT/photo.safetensors (use it with 'monoavatar photo --weights', or copy it to "
         "monoavatar/learn/weights/). Every step resumes from what OUT already holds.")
-    p.add_argument("what", choices=("photo",), help="the part to train")
     p.add_argument("-o", "--output", required=True, type=Path, help="working folder")
     _option(p, "--samples", PhotoTrainConfig, "samples", "training photos", type=int)
     _option(p, "--val", PhotoTrainConfig, "val", "validation photos", type=int)
@@ -796,7 +884,7 @@ def _run_demo(args: argparse.Namespace) -> int:
     config = ReconstructConfig(input=InputSettings(frames=args.frames, perception="mediapipe"),
                                progress=not args.quiet)  # fmt: skip
     result = reconstruct(scene, args.output / "avatar", config)
-    _with_ground_truth(result)
+    _with_ground_truth(result, result.body)
     print(f"input video: {scene / 'video.mp4'} (ground truth in {scene / 'gt'})")
     _print_summary(result.report, result.out_dir)
     return 0
@@ -889,7 +977,7 @@ VERBS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None]]] = {
     "track": ("3D motion of a person through a video by optical flow (npz, bvh, glb)",
               _add_track),
     "photo": ("one photograph of a person → a rigged, textured avatar (Paper E)", _add_photo),
-    "train": ("train a learned part (photo) on data made by synth", _add_train),
+    "train": ("train a learned part (photo, fast) on data made by synth", _add_train),
     "transfer": ("dress the person of one avatar folder in another's clothes (Sec. E.6.5)",
                  _add_transfer),
     "measure": ("body measurements of an avatar (girths, lengths), under and over the clothes",
