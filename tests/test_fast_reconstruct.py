@@ -50,11 +50,11 @@ def test_fast_writes_reconstructs_avatar_folder(fast_out: Path) -> None:
     folder = AvatarFolder.load(fast_out)
     report = json.loads((fast_out / "report.json").read_text())
     assert report["settings"]["fast"] is True
-    assert set(report["timings"]) >= {"perception", "network", "texture", "export"}
+    assert set(report["timings"]) >= {"perception", "network", "refine", "texture", "export"}
     assert report["input"]["frames"] == 4
     assert not any(report["fit"]["failed"])
-    # the network's poses put the avatar onto the person: its outline overlaps the masks
-    assert report["fit"]["median_silhouette_iou"] > 0.35
+    # refined top-down, the avatar lies on the person: its outline covers the masks
+    assert report["fit"]["median_silhouette_iou"] > 0.75
     assert folder.params.offsets.shape == (load_body_model("anny").num_vertices, 3)
     assert len(folder.params.poses) == 4
     glb = Glb.load(fast_out / "avatar.glb")
@@ -83,6 +83,22 @@ def test_fast_beats_the_average_body(scene: Path, fast_out: Path) -> None:
     assert report["ground_truth"]["surface_error_rigid_mm"] < base.surface_error_rigid_mm
 
 
+def test_refinement_puts_the_avatar_onto_the_frames(scene: Path, fast_out: Path,
+                                                    tmp_path: Path) -> None:
+    """The network's guess (--budget 0) overlaps the person; the refinement against the
+    silhouettes and keypoints makes it cover them."""
+    out = tmp_path / "guess"
+    assert main(["reconstruct", str(scene), "-o", str(out), "--fast", "--frames", "4",
+                 "--budget", "0", "--texture-size", "128", "--quiet"]) == 0  # fmt: skip
+    guess = json.loads((out / "report.json").read_text())
+    refined = json.loads((fast_out / "report.json").read_text())
+    assert guess["timings"].get("refine", 0.0) < 0.5
+    assert guess["fit"]["median_silhouette_iou"] > 0.35
+    assert refined["fit"]["median_silhouette_iou"] > guess["fit"]["median_silhouette_iou"] + 0.2
+    assert (np.nanmedian(refined["fit"]["keypoint_error_px"])
+            < np.nanmedian(guess["fit"]["keypoint_error_px"]))  # fmt: skip
+
+
 def test_fast_height_is_the_given_height(scene: Path, tmp_path: Path) -> None:
     out = tmp_path / "tall"
     assert main(["reconstruct", str(scene), "-o", str(out), "--fast", "--frames", "2",
@@ -97,6 +113,8 @@ def test_fast_height_is_the_given_height(scene: Path, tmp_path: Path) -> None:
     (["--weights", "w.safetensors"], "--weights applies to --fast only"),
     (["--fast", "--weights", "missing.safetensors"], "no few-frame network weights"),
     (["--fast", "--height", "180"], "height must be in metres"),
+    (["--budget", "5"], "--budget applies to --fast only"),
+    (["--fast", "--budget", "-1"], "--budget is seconds of refinement"),
 ])  # fmt: skip
 def test_fast_bad_options_exit_2_and_write_nothing(scene: Path, tmp_path: Path, args: list[str],
                                                    message: str,

@@ -271,6 +271,9 @@ def _add_reconstruct(p: argparse.ArgumentParser) -> None:
     _option(p, "--weights", FastConfig, "weights", "with --fast: a few-frame network "
             "weights file (from 'monoavatar train fast'; default: the shipped weights)",
             metavar="FILE")  # fmt: skip
+    _option(p, "--budget", FastConfig, "budget", "with --fast: seconds of top-down refinement "
+            "of the network's prediction against the frames' silhouettes and keypoints (0: the "
+            "prediction as it is)", type=float, metavar="S")  # fmt: skip
     p.set_defaults(run=_run_reconstruct)
 
 
@@ -303,7 +306,7 @@ def _fast_config(args: argparse.Namespace) -> FastConfig:
     if frames == _default(InputSettings, "frames"):
         frames = FAST_MAX_FRAMES
     return FastConfig(input=replace(base.input, frames=frames), height=args.height,
-                      weights=args.weights, device=args.device,
+                      budget=args.budget, weights=args.weights, device=args.device,
                       texture=replace(TextureSettings(), size=args.texture_size,
                                       method=args.texture_method, workers=args.workers),
                       progress=not args.quiet)  # fmt: skip
@@ -311,7 +314,7 @@ def _fast_config(args: argparse.Namespace) -> FastConfig:
 
 def _run_reconstruct(args: argparse.Namespace) -> int:
     from monoavatar.body import load_body_model
-    from monoavatar.pipelines.fast import fast_reconstruct
+    from monoavatar.pipelines.fast import FastConfig, fast_reconstruct
     from monoavatar.pipelines.reconstruct import reconstruct
 
     if args.fast:
@@ -321,6 +324,8 @@ def _run_reconstruct(args: argparse.Namespace) -> int:
         return 0
     if args.weights is not None:
         raise CliError("--weights applies to --fast only")
+    if args.budget != _default(FastConfig, "budget"):
+        raise CliError("--budget applies to --fast only")
     result = reconstruct(args.input, args.output, _config(args))
     _with_ground_truth(result, result.body)
     _print_summary(result.report, result.out_dir)
@@ -927,8 +932,15 @@ def _add_bench(p: argparse.ArgumentParser) -> None:
                    "12 sealed synthetic test photos (about 3 minutes; with --quick two) into "
                    "OUT/photo.md, OUT/photo.json and the plots OUT/photo_yaw.png, "
                    "OUT/photo_fill.png")  # fmt: skip
+    p.add_argument("--fast", action="store_true",
+                   help="instead, the few-frame table (Paper D, Table D.1): 'reconstruct "
+                   "--fast' on the suite's subjects from 1, 2, 4 and 8 frames, before and after "
+                   "refinement, beside the full pipeline on the same 8 frames (about 40 "
+                   "minutes; with --quick one small subject) into OUT/fast.md, OUT/fast.json "
+                   "and the refinement curve OUT/fast_refine.png (Fig. D.7)")  # fmt: skip
     p.add_argument("--weights", type=Path, default=None, metavar="FILE",
-                   help="with --photo: photo-network weights (default: the shipped ones)")
+                   help="with --photo or --fast: the network's weights (default: the shipped "
+                   "ones)")  # fmt: skip
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(run=_run_bench)
 
@@ -946,6 +958,15 @@ def _run_bench(args: argparse.Namespace) -> int:
         results = run_tracking_bench(args.output, quick=args.quick, progress=not args.quiet)
         print(render_tracking_markdown(results["sequences"]))
         print(f"results: {args.output / 'tracking.md'} and {args.output / 'tracking.json'}")
+        return 0
+    if args.fast:
+        from monoavatar.bench.fast import render_fast_markdown, run_fast_bench
+
+        results = run_fast_bench(args.output, quick=args.quick, subjects=args.subjects,
+                                 progress=not args.quiet,
+                                 weights=None if args.weights is None else str(args.weights))
+        print(render_fast_markdown(results["runs"]))
+        print(f"results: {args.output / 'fast.md'} and {args.output / 'fast.json'}")
         return 0
     if args.photo:
         from monoavatar.bench.photo import render_photo_markdown, run_photo_bench

@@ -276,6 +276,28 @@ def test_a_symmetric_truth_stays_symmetric(bulge_scene):
     assert asym.mean() < 3e-4  # without the symmetry term: ≈ 1 mm
 
 
+def test_offsets_init_is_kept_where_the_silhouettes_say_nothing(bulge_scene):
+    """Seen from the front only, the belly bulge lies inside the outline: from D = 0 the fit
+    cannot find it, from offsets_init = the truth (a learned prediction) it keeps it, and the
+    outline still holds the avatar where it is seen."""
+    body, camera, masks, pose, truth, bulge = bulge_scene
+    with torch.no_grad():
+        rest = body.rest_shape(body.default_shape(1))[0][0]
+
+    def fit(init):
+        return fit_consensus_shape(body, masks[:1], camera, pose[:1], torch.zeros(1, 3),
+                                   body.default_shape(1)[0], ShapeSettings(rounds=3),
+                                   offsets_init=init)  # fmt: skip
+
+    err_zero = (fit(None).vertices - truth).norm(dim=-1)
+    err_init = (fit(truth - rest).vertices - truth).norm(dim=-1)
+    assert err_zero[bulge].mean() > 0.015  # the bulge is 2.5 cm: not found
+    assert err_init[bulge].mean() < 0.004  # kept
+    assert err_init.mean() < 0.004
+    with pytest.raises(ShapeFitError, match="offsets_init must have shape"):
+        fit(torch.zeros(5, 3))
+
+
 def test_shoes_are_taken_up_by_the_feet(anny32):
     """A shoe is real displacement around the foot (1.2 cm along the normals here): the
     feet's rigidity term keeps a foot whole but must not keep the shoe out of the avatar

@@ -323,6 +323,7 @@ def fit_consensus_shape(
     settings: ShapeSettings | None = None,
     *,
     transforms: Tensor | None = None,
+    offsets_init: Tensor | np.ndarray | None = None,
     progress: bool = False,
 ) -> CanonicalShape:
     """Fit the consensus shape (β and offsets D) of a person to the silhouettes of F frames
@@ -339,6 +340,9 @@ def fit_consensus_shape(
         transforms: optional (F, J, 4, 4) rest → posed joint transforms to pose and unpose
             with instead of those of ``poses``/``translations`` on the current shape's skeleton
             (e.g. a ground-truth skeleton's; they are then held fixed while β changes).
+        offsets_init: optional (V, 3) offsets D to start from, metres; they are also the
+            reference of E_var and E_lp (the fit stays near them where the rays say little),
+            e.g. a learned prediction (``reconstruct --fast``). None: start from D = 0.
         progress: print one line per round.
     Returns:
         :class:`CanonicalShape`.
@@ -348,8 +352,9 @@ def fit_consensus_shape(
     settings = settings or ShapeSettings()
     with torch_threads(settings.threads):
         return _fit(
-            body, masks, camera, poses, translations, shape_init, settings, transforms, progress
-        )
+            body, masks, camera, poses, translations, shape_init, settings, transforms,
+            offsets_init, progress,
+        )  # fmt: skip
 
 
 def _fit(
@@ -361,6 +366,7 @@ def _fit(
     shape_init: Tensor | np.ndarray,
     settings: ShapeSettings,
     transforms: Tensor | None,
+    offsets_init: Tensor | np.ndarray | None,
     progress: bool,
 ) -> CanonicalShape:
     t_start = time.perf_counter()
@@ -397,7 +403,12 @@ def _fit(
     )
     beta_init = beta_t.numpy().copy()
     beta = beta_init.copy()
-    offsets = np.zeros((V, 3))
+    prior = np.zeros((V, 3))
+    if offsets_init is not None:
+        prior = torch.as_tensor(offsets_init, dtype=torch.float64).numpy().copy()
+        if prior.shape != (V, 3):
+            raise ShapeFitError(f"offsets_init must have shape ({V}, 3), got {prior.shape}")
+    offsets = prior.copy()
     shift_total = np.zeros((len(frames), 3))
     diagnostics: list[RoundDiagnostics] = []
     w_lp, w_var, w_sym = settings.w_laplacian, settings.w_body, settings.w_symmetry
@@ -448,7 +459,7 @@ def _fit(
             )
             rest = solver.rest_vertices(body, beta)
         if stage == "offsets":
-            reference = offsets.copy() if settings.reinit else np.zeros_like(offsets)
+            reference = offsets.copy() if settings.reinit else prior
             normals = None
             if settings.offsets_along_normals:
                 normals = vertex_normals(rest + offsets, faces_np).numpy()

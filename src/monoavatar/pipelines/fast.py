@@ -4,25 +4,36 @@ seconds, the shape and poses predicted by the few-frame network instead of fitte
 Stages (each timed in ``report.json``)::
 
     inputs ─ perception ─ network (β, offsets D, per-frame poses; translations from the
-           keypoints, Sec. D.3) ─ texture (as reconstruct's) ─ export (the same avatar folder
-           as reconstruct: avatar.glb, avatar.obj, texture, params, report, previews)
+           keypoints, Sec. D.3) ─ refine (top-down, Sec. D.3.4, for ``budget`` seconds) ─
+           texture (as reconstruct's) ─ export (the same avatar folder as reconstruct:
+           avatar.glb, avatar.obj, texture, params, report, previews)
 
-With ``--height`` the predicted body's height phenotype is set to give that height.
+The top-down refinement alternates, while its time budget lasts, the pose energy of the full
+pipeline (keypoints and silhouette, Eq. B.4–B.5, every frame on its own: the frames are far
+apart in time) from the network's poses, and the consensus shape from unposed silhouette rays
+(Eq. B.7) started from the network's β and offsets, which are also the reference its
+Laplacian and offset terms (Eq. B.9–B.10, the D.17 analogue) pull towards, with the symmetry
+term (Eq. B.11 ≙ D.18) and the rigid face, hands and feet. The network's offset decoder is
+linear, so tuning its last layer (D.3.4) is tuning the offsets themselves.
+
+With ``--height`` the body's height phenotype is set to give that height (after the network
+and again after the refinement).
 """
 
 from __future__ import annotations
 
 import resource
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from monoavatar.body import load_body_model
+from monoavatar.body import BodyModel, load_body_model
 from monoavatar.fit.pose import PoseTrack, evaluate_fit
-from monoavatar.fit.shape import CanonicalShape
+from monoavatar.fit.pose_energy import PoseSettings
+from monoavatar.fit.shape import CanonicalShape, ShapeSettings, fit_consensus_shape
 from monoavatar.io.avatar_folder import Report
 from monoavatar.learn.fast_capture import FastCapture, match_height, predict_capture, rest_height
 from monoavatar.learn.fast_model import load_fast_network
@@ -36,11 +47,14 @@ from monoavatar.pipelines.stages import (
     kept_warnings,
     load_inputs,
     output_folder,
+    refine_stage,
+    shifted_track,
     texture_stage,
 )
 from monoavatar.texture.backproject import TextureSettings, UVTexture
 
-__all__ = ["FAST_MAX_FRAMES", "FastConfig", "FastResult", "fast_reconstruct"]
+__all__ = ["FAST_MAX_FRAMES", "FastConfig", "FastResult", "RefineStep", "fast_reconstruct",
+           "refine_top_down"]  # fmt: skip
 
 FAST_MAX_FRAMES = 8
 """The most frames the few-frame network was trained on."""
@@ -50,6 +64,17 @@ def _fast_input() -> InputSettings:
     return InputSettings(frames=FAST_MAX_FRAMES)
 
 
+def _fast_poses() -> PoseSettings:
+    """The pose energy per frame: the few frames lie far apart in time, so no smoothness."""
+    return PoseSettings(window=1, smooth_weight=0.0)
+
+
+def _fast_shape() -> ShapeSettings:
+    """The consensus shape held ten times closer to the prediction than to the bare body, and
+    the pull not decayed over the rounds (few frames: few rays)."""
+    return ShapeSettings(w_body=0.3, decay=1.0)
+
+
 @dataclass
 class FastConfig:
     """Options of :func:`fast_reconstruct` (``reconstruct --fast``).
@@ -57,6 +82,10 @@ class FastConfig:
     Attributes:
         input: what to read and how to perceive it (``frames``: 1 to 8 key-frames).
         height: the person's height in metres (None: up to scale, the predicted height).
+        budget: seconds of top-down refinement (Sec. D.3.4); a round of pose and shape
+            refinement starts only while the last round's duration still fits; 0: the
+            network's prediction as it is.
+        pose, shape: the refinement's pose energy and consensus-shape settings.
         weights: a few-frame network ``.safetensors`` file (None: the shipped weights).
         texture: the texture stage's settings.
         device: ``"cpu"`` or ``"cuda"`` for the network.
@@ -65,6 +94,9 @@ class FastConfig:
 
     input: InputSettings = field(default_factory=_fast_input)
     height: float | None = None
+    budget: float = 10.0
+    pose: PoseSettings = field(default_factory=_fast_poses)
+    shape: ShapeSettings = field(default_factory=_fast_shape)
     weights: str | None = None
     texture: TextureSettings = field(default_factory=TextureSettings)
     device: str = "cpu"
@@ -77,6 +109,8 @@ class FastConfig:
              f"--frames must lie in [1, {FAST_MAX_FRAMES}] with --fast, got {self.input.frames}"),
             (self.height is None or 0.5 <= self.height <= 2.6,
              f"--height is in metres (0.5 to 2.6), got {self.height}; 175 cm is 1.75"),
+            (0 <= self.budget <= 3600,
+             f"--budget is seconds of refinement in [0, 3600], got {self.budget}"),
             (self.input.focal is None or self.input.focal > 0,
              f"--focal must be a positive number of pixels, got {self.input.focal}"),
             (self.input.perception in PERCEPTION,
@@ -92,8 +126,18 @@ class FastConfig:
 
 
 @dataclass(frozen=True)
+class RefineStep:
+    """The avatar after ``seconds`` of top-down refinement (0: the network's)."""
+
+    seconds: float
+    track: PoseTrack
+    shape: CanonicalShape
+
+
+@dataclass(frozen=True)
 class FastResult:
-    """What :func:`fast_reconstruct` computed and wrote."""
+    """What :func:`fast_reconstruct` computed and wrote; ``steps`` the avatar after each
+    refinement round (the first: the network's prediction)."""
 
     out_dir: Path
     files: dict[str, Path]
@@ -103,6 +147,33 @@ class FastResult:
     shape: CanonicalShape
     texture: UVTexture
     report: Report
+    steps: tuple[RefineStep, ...]
+
+
+def refine_top_down(body: BodyModel, inputs: Inputs, track: PoseTrack, shape: CanonicalShape,
+                    config: FastConfig) -> list[RefineStep]:  # fmt: skip
+    """Sec. D.3.4: rounds of (poses re-fitted to keypoints and silhouettes with the current
+    avatar; consensus shape from the unposed silhouette rays, started from and regularised
+    towards the current β and offsets) while ``config.budget`` seconds last. Returns the
+    avatar before the first round and after each."""
+    steps = [RefineStep(0.0, track, shape)]
+    start = time.perf_counter()
+    last = 0.0
+    while time.perf_counter() - start + last <= config.budget:
+        t0 = time.perf_counter()
+        track = refine_stage(body, inputs, track, shape, config.pose)
+        good = np.flatnonzero(~track.failed)
+        if len(good) == 0:
+            break
+        shape = fit_consensus_shape(
+            body, inputs.observations.masks[good], track.camera, track.poses[good],
+            track.translations[good], shape.shape.double().numpy(), config.shape,
+            offsets_init=shape.offsets,
+        )  # fmt: skip
+        track = shifted_track(track, shape)
+        last = time.perf_counter() - t0
+        steps.append(RefineStep(time.perf_counter() - start, track, shape))
+    return steps
 
 
 def capture_track(capture: FastCapture, inputs: Inputs, body_identity: str, height: float,
@@ -163,17 +234,22 @@ def _fast(input_path: str | Path, out: Path, config: FastConfig) -> FastResult:
                                 "(keypoints) to place the avatar")  # fmt: skip
         track = capture_track(capture, inputs, body.identity, height, config.height is not None,
                               timer.seconds.get("network", 0.0))  # fmt: skip
-        offsets = torch.as_tensor(capture.offsets, dtype=body.dtype)
-        beta = torch.as_tensor(capture.shape, dtype=body.dtype)
-        with torch.no_grad():
-            rest, _ = body.rest_shape(beta[None])
-        good = np.flatnonzero(~track.failed)
-        shape = CanonicalShape(shape=beta, offsets=offsets, vertices=rest[0] + offsets,
-                               faces=body.faces, frames=good, frame_shifts=np.zeros((len(good), 3)))
+        shape = _shape(body, capture.shape, capture.offsets, np.flatnonzero(~track.failed))
+        with timer("refine"):
+            steps = refine_top_down(body, inputs, track, shape, config)
+        track, shape = steps[-1].track, steps[-1].shape
+        if config.height is not None and len(steps) > 1:
+            beta = match_height(body, shape.shape.double().numpy(),
+                                shape.offsets.double().numpy(), config.height)  # fmt: skip
+            shape = _shape(body, beta, shape.offsets.double().numpy(), shape.frames,
+                           shape.frame_shifts)  # fmt: skip
+        offsets, beta_t = shape.offsets, shape.shape
+        track = replace(track, shape=beta_t.double().numpy(), height=rest_height(
+            body, beta_t.double().numpy(), offsets.double().numpy()))
         with timer("texture"):
             texture, sh = texture_stage(body, inputs, track, shape, config.texture,
                                         progress=config.progress)  # fmt: skip
-        kp, iou = evaluate_fit(body, beta, track.poses, track.translations, obs, offsets=offsets)
+        kp, iou = evaluate_fit(body, beta_t, track.poses, track.translations, obs, offsets=offsets)
         track.keypoint_error[:], track.silhouette_iou[:] = kp, iou
     caught = [f"{record.category.__name__}: {record.message}" for record in records]
     report = reconstruction_report(input_path, body, inputs, track, shape, texture,
@@ -181,13 +257,26 @@ def _fast(input_path: str | Path, out: Path, config: FastConfig) -> FastResult:
                                    scale_known=config.height is not None)  # fmt: skip
     with timer("export"):
         folder = avatar_folder(body, inputs, track, shape, texture, sh, report)
-        glb = skinned_mesh_from_body(body, capture.shape, capture.offsets, texture.image)
+        glb = skinned_mesh_from_body(body, beta_t.double().numpy(), offsets.double().numpy(),
+                                     texture.image)  # fmt: skip
         files = folder.save(out, glb=glb)
     report.timings = dict(timer.seconds)
     report.seconds = time.perf_counter() - start
     report.peak_memory_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     report.write(out / "report.json")
-    return FastResult(out, files, inputs, capture, track, shape, texture, report)
+    return FastResult(out, files, inputs, capture, track, shape, texture, report, tuple(steps))
+
+
+def _shape(body: BodyModel, beta: np.ndarray, offsets: np.ndarray, frames: np.ndarray,
+           shifts: np.ndarray | None = None) -> CanonicalShape:  # fmt: skip
+    """β (6,) and offsets (V, 3) as a :class:`CanonicalShape` of key-frames ``frames``."""
+    b = torch.as_tensor(beta, dtype=body.dtype)
+    d = torch.as_tensor(offsets, dtype=body.dtype)
+    with torch.no_grad():
+        rest, _ = body.rest_shape(b[None])
+    return CanonicalShape(shape=b, offsets=d, vertices=rest[0] + d, faces=body.faces,
+                          frames=frames, frame_shifts=np.zeros((len(frames), 3))
+                          if shifts is None else shifts)  # fmt: skip
 
 
 def _all_frames(capture: FastCapture, seen: np.ndarray, total: int) -> FastCapture:
