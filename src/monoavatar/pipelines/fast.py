@@ -11,9 +11,9 @@ Stages (each timed in ``report.json``)::
 The top-down refinement alternates, while its time budget lasts, the pose energy of the full
 pipeline (keypoints and silhouette, Eq. B.4–B.5, every frame on its own: the frames are far
 apart in time) from the network's poses, and the consensus shape from unposed silhouette rays
-(Eq. B.7) started from the network's β and offsets, which are also the reference its
-Laplacian and offset terms (Eq. B.9–B.10, the D.17 analogue) pull towards, with the symmetry
-term (Eq. B.11 ≙ D.18) and the rigid face, hands and feet. The network's offset decoder is
+(Eq. B.7) started from the current β and offsets (in the first round the network's), which
+are also the reference its Laplacian and offset terms (Eq. B.9–B.10, the D.17 analogue) pull
+towards, with the symmetry term (Eq. B.11, D.18) and the rigid face, hands and feet. The network's offset decoder is
 linear, so tuning its last layer (D.3.4) is tuning the offsets themselves.
 
 With ``--height`` the body's height phenotype is set to give that height (after the network
