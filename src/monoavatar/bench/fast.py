@@ -64,6 +64,7 @@ def run_fast_bench(out_dir: str | Path, *, quick: bool = False, subjects: list[s
     counts = (1, 8) if quick else FRAME_COUNTS
     rows: list[dict[str, Any]] = []
     curves: list[dict[str, Any]] = []
+    results = _write(out, suite.to_dict(), rows, curves)
     for subject in chosen:
         scene = ensure_scene(subject, out / "scenes", progress=progress)
         truth = read_synth_scene(scene).ground_truth
@@ -82,11 +83,12 @@ def run_fast_bench(out_dir: str | Path, *, quick: bool = False, subjects: list[s
             except Exception as exc:  # noqa: BLE001 - recorded, the benchmark goes on
                 rows.append(row | {"error": f"{type(exc).__name__}: {exc}"})
                 continue
-            steps = [{"seconds": s.seconds} | _errors(body, s.shape, truth) for s in result.steps]
+            kept = result.steps if method == "curve" else (result.steps[0], result.steps[-1])
+            steps = [{"seconds": s.seconds} | _errors(body, s.shape, truth) for s in kept]
             if method == "curve":
                 curves.append({"subject": subject.name, "steps": steps})
                 continue
-            row.update(before=steps[0], after=steps[-1], rounds=len(steps) - 1,
+            row.update(before=steps[0], after=steps[-1], rounds=len(result.steps) - 1,
                        seconds=result.report.seconds,
                        network_seconds=result.report.timings["network"],
                        refine_seconds=result.report.timings.get("refine", 0.0))  # fmt: skip
@@ -106,13 +108,22 @@ def run_fast_bench(out_dir: str | Path, *, quick: bool = False, subjects: list[s
             else:
                 rows.append(row | {"after": _errors(body, full_result.shape, truth),
                                    "seconds": full_result.report.seconds})  # fmt: skip
-    results = {"format": "monoavatar-bench-fast-1", "suite": suite.to_dict(), "runs": rows,
-               "curves": curves, "published": TABLE_D1}  # fmt: skip
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "fast.json").write_text(json.dumps(results, indent=2))
-    (out / "fast.md").write_text(render_fast_markdown(rows))
+        results = _write(out, suite.to_dict(), rows, curves)  # after each subject
     if curves:
         _curve_plot(out / "fast_refine.png", curves)
+    return results
+
+
+def _write(out: Path, suite: dict[str, Any], rows: list[dict[str, Any]],
+           curves: list[dict[str, Any]]) -> dict[str, Any]:  # fmt: skip
+    """``fast.json`` and ``fast.md`` of the runs so far (atomically); returns the results."""
+    from monoavatar.core.files import atomic_write_text
+
+    results = {"format": "monoavatar-bench-fast-1", "suite": suite, "runs": rows,
+               "curves": curves, "published": TABLE_D1}  # fmt: skip
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(out / "fast.json", json.dumps(results, indent=2))
+    atomic_write_text(out / "fast.md", render_fast_markdown(rows))
     return results
 
 
