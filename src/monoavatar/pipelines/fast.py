@@ -11,9 +11,9 @@ Stages (each timed in ``report.json``)::
 The top-down refinement alternates, while its time budget lasts, the pose energy of the full
 pipeline (keypoints and silhouette, Eq. B.4–B.5, every frame on its own: the frames are far
 apart in time) from the network's poses, and the consensus shape from unposed silhouette rays
-(Eq. B.7) started from the current β and offsets (in the first round the network's), which
-are also the reference its Laplacian and offset terms (Eq. B.9–B.10, the D.17 analogue) pull
-towards, with the symmetry term (Eq. B.11, D.18) and the rigid face, hands and feet. The network's offset decoder is
+(Eq. B.7) started in every round from the network's β and offsets, which are also the
+reference its Laplacian and offset terms (Eq. B.9–B.10, the D.17 analogue) pull towards, with
+the symmetry term (Eq. B.11, D.18) and the rigid face, hands and feet. The network's offset decoder is
 linear, so tuning its last layer (D.3.4) is tuning the offsets themselves.
 
 With ``--height`` the body's height phenotype is set to give that height (after the network
@@ -153,9 +153,11 @@ class FastResult:
 def refine_top_down(body: BodyModel, inputs: Inputs, track: PoseTrack, shape: CanonicalShape,
                     config: FastConfig) -> list[RefineStep]:  # fmt: skip
     """Sec. D.3.4: rounds of (poses re-fitted to keypoints and silhouettes with the current
-    avatar; consensus shape from the unposed silhouette rays, started from and regularised
-    towards the current β and offsets) while ``config.budget`` seconds last. Returns the
-    avatar before the first round and after each."""
+    avatar; consensus shape from the unposed silhouette rays at those poses, started from and
+    regularised towards the guess ``shape``'s β and offsets in every round, so that rounds
+    refine the poses and the rays without drifting from the guess) while ``config.budget``
+    seconds last. Returns the avatar before the first round and after each."""
+    guess = shape
     steps = [RefineStep(0.0, track, shape)]
     start = time.perf_counter()
     last = 0.0
@@ -167,8 +169,8 @@ def refine_top_down(body: BodyModel, inputs: Inputs, track: PoseTrack, shape: Ca
             break
         shape = fit_consensus_shape(
             body, inputs.observations.masks[good], track.camera, track.poses[good],
-            track.translations[good], shape.shape.double().numpy(), config.shape,
-            offsets_init=shape.offsets,
+            track.translations[good], guess.shape.double().numpy(), config.shape,
+            offsets_init=guess.offsets,
         )  # fmt: skip
         track = shifted_track(track, shape)
         last = time.perf_counter() - t0
