@@ -13,8 +13,8 @@ pipeline (keypoints and silhouette, Eq. B.4–B.5, every frame on its own: the f
 apart in time) from the network's poses, and the consensus shape from unposed silhouette rays
 (Eq. B.7) started in every round from the network's β and offsets, which are also the
 reference its Laplacian and offset terms (Eq. B.9–B.10, the D.17 analogue) pull towards, with
-the symmetry term (Eq. B.11, D.18) and the rigid face, hands and feet. The network's offset decoder is
-linear, so tuning its last layer (D.3.4) is tuning the offsets themselves.
+the symmetry term (Eq. B.11, D.18) and the rigid face, hands and feet. The network's offset
+decoder is linear, so tuning its last layer (D.3.4) is tuning the offsets themselves.
 
 With ``--height`` the body's height phenotype is set to give that height (after the network
 and again after the refinement).
@@ -39,11 +39,12 @@ from monoavatar.learn.fast_capture import FastCapture, match_height, predict_cap
 from monoavatar.learn.fast_model import load_fast_network
 from monoavatar.pipelines.export import avatar_folder, reconstruction_report
 from monoavatar.pipelines.stages import (
-    PERCEPTION,
+    MAX_TEXTURE_SIZE,
     Inputs,
     InputSettings,
     PipelineError,
     StageTimer,
+    check_options,
     kept_warnings,
     load_inputs,
     output_folder,
@@ -104,25 +105,17 @@ class FastConfig:
 
     def validate(self) -> None:
         """Raise :class:`PipelineError` naming the CLI option that is out of range."""
-        checks = [
+        check_options([
             (1 <= self.input.frames <= FAST_MAX_FRAMES,
              f"--frames must lie in [1, {FAST_MAX_FRAMES}] with --fast, got {self.input.frames}"),
-            (self.height is None or 0.5 <= self.height <= 2.6,
-             f"--height is in metres (0.5 to 2.6), got {self.height}; 175 cm is 1.75"),
             (0 <= self.budget <= 3600,
              f"--budget is seconds of refinement in [0, 3600], got {self.budget}"),
-            (self.input.focal is None or self.input.focal > 0,
-             f"--focal must be a positive number of pixels, got {self.input.focal}"),
-            (self.input.perception in PERCEPTION,
-             f"perception must be one of {PERCEPTION}, got {self.input.perception!r}"),
+            (16 <= self.texture.size <= MAX_TEXTURE_SIZE,
+             f"--texture-size must lie in [16, {MAX_TEXTURE_SIZE}] texels, got "
+             f"{self.texture.size}"),
             (self.input.poses == "fit", "--poses ground-truth does not apply to --fast"),
-            (self.device in ("cpu", "cuda"), f"--device must be cpu or cuda, got {self.device!r}"),
-        ]  # fmt: skip
-        for ok, message in checks:
-            if not ok:
-                raise PipelineError(message)
-        if self.device == "cuda" and not torch.cuda.is_available():
-            raise PipelineError("--device cuda: no CUDA GPU is available to PyTorch here")
+        ], height=self.height, focal=self.input.focal, perception=self.input.perception,
+            device=self.device)  # fmt: skip
 
 
 @dataclass(frozen=True)

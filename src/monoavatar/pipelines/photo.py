@@ -37,11 +37,11 @@ from monoavatar.learn.photo_data import base_fine_vertices, partial_texture
 from monoavatar.learn.photo_model import PhotoNetwork, load_photo_network
 from monoavatar.learn.uvmaps import DISPLACEMENT_SCALE, UVLayout, sample_vertex_values
 from monoavatar.pipelines.stages import (
-    PERCEPTION,
     Inputs,
     InputSettings,
     PipelineError,
     StageTimer,
+    check_options,
     kept_warnings,
     load_inputs,
     machine,
@@ -81,24 +81,12 @@ class PhotoConfig:
 
     def validate(self) -> None:
         """Raise :class:`PipelineError` naming the CLI option that is out of range."""
-        height, focal = self.pose.height, self.input.focal
-        checks = [
-            (height is None or 0.5 <= height <= 2.6,
-             f"--height is in metres (0.5 to 2.6), got {height}; 175 cm is 1.75"),
-            (focal is None or focal > 0,
-             f"--focal must be a positive number of pixels, got {focal}"),
+        check_options([
             (self.texture_size >= 64, f"--texture-size must be at least 64, got "
              f"{self.texture_size}"),
             (self.max_side >= 256, f"--max-side must be at least 256, got {self.max_side}"),
-            (self.input.perception in PERCEPTION,
-             f"perception must be one of {PERCEPTION}, got {self.input.perception!r}"),
-            (self.device in ("cpu", "cuda"), f"--device must be cpu or cuda, got {self.device!r}"),
-        ]  # fmt: skip
-        for ok, message in checks:
-            if not ok:
-                raise PipelineError(message)
-        if self.device == "cuda" and not torch.cuda.is_available():
-            raise PipelineError("--device cuda: no CUDA GPU is available to PyTorch here")
+        ], height=self.pose.height, focal=self.input.focal, perception=self.input.perception,
+            device=self.device)  # fmt: skip
 
 
 @dataclass

@@ -20,7 +20,6 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from monoavatar.body import BodyModel, load_body_model
 from monoavatar.fit.flow_refine import FlowRefineSettings
@@ -31,12 +30,13 @@ from monoavatar.io.avatar_folder import (
 )
 from monoavatar.pipelines.export import avatar_folder, reconstruction_report
 from monoavatar.pipelines.stages import (
-    PERCEPTION,
+    MAX_TEXTURE_SIZE,
     POSES,
     Inputs,
     InputSettings,
     PipelineError,
     StageTimer,
+    check_options,
     flow_stage,
     kept_warnings,
     load_inputs,
@@ -54,8 +54,6 @@ __all__ = ["ReconstructConfig", "ReconstructResult", "fit_avatar", "reconstruct"
 MAX_KEYFRAMES = 600
 """The most key-frames ``reconstruct`` takes."""
 
-MAX_TEXTURE_SIZE = 8192
-"""The largest texture side (an 8192² texture takes 200 MB as uint8, more while built)."""
 
 
 @dataclass
@@ -90,8 +88,7 @@ class ReconstructConfig:
 
     def validate(self) -> None:
         """Raise :class:`PipelineError` naming the CLI option that is out of range."""
-        height, focal = self.pose.height, self.input.focal
-        checks = [
+        check_options([
             (self.input.frames >= 2, f"--frames must be at least 2, got {self.input.frames}"),
             (self.input.frames <= MAX_KEYFRAMES,
              f"--frames must be at most {MAX_KEYFRAMES} key-frames (each is fitted and held "
@@ -100,24 +97,13 @@ class ReconstructConfig:
             (self.flow_rounds >= 0, f"--flow-rounds must be >= 0, got {self.flow_rounds}"),
             (self.flow.workers >= 1 and self.texture.workers >= 1,
              f"--workers must be at least 1, got {min(self.flow.workers, self.texture.workers)}"),
-            (height is None or 0.5 <= height <= 2.6,
-             f"--height is in metres (0.5 to 2.6), got {height}; 175 cm is 1.75"),
-            (focal is None or focal > 0,
-             f"--focal must be a positive number of pixels, got {focal}"),
             (16 <= self.texture.size <= MAX_TEXTURE_SIZE,
              f"--texture-size must lie in [16, {MAX_TEXTURE_SIZE}] texels, got "
              f"{self.texture.size}"),
-            (self.input.perception in PERCEPTION,
-             f"perception must be one of {PERCEPTION}, got {self.input.perception!r}"),
             (self.input.poses in POSES,
              f"poses must be one of {POSES}, got {self.input.poses!r}"),
-            (self.device in ("cpu", "cuda"), f"--device must be cpu or cuda, got {self.device!r}"),
-        ]  # fmt: skip
-        for ok, message in checks:
-            if not ok:
-                raise PipelineError(message)
-        if self.device == "cuda" and not torch.cuda.is_available():
-            raise PipelineError("--device cuda: no CUDA GPU is available to PyTorch here")
+        ], height=self.pose.height, focal=self.input.focal, perception=self.input.perception,
+            device=self.device)  # fmt: skip
 
 
 @dataclass(frozen=True)

@@ -46,12 +46,14 @@ if TYPE_CHECKING:
     from monoavatar.io.gltf import SkinnedMesh
 
 __all__ = [
+    "MAX_TEXTURE_SIZE",
     "PERCEPTION",
     "POSES",
     "Inputs",
     "InputSettings",
     "PipelineError",
     "StageTimer",
+    "check_options",
     "flow_stage",
     "kept_warnings",
     "load_inputs",
@@ -64,11 +66,34 @@ __all__ = [
 ]
 
 PERCEPTION = ("auto", "mediapipe", "ground-truth")
+MAX_TEXTURE_SIZE = 8192
+"""The largest texture side a pipeline accepts, texels (an 8192² texture takes 200 MB as uint8,
+more while built)."""
 POSES = ("fit", "ground-truth")
 
 
 class PipelineError(MonoavatarError, RuntimeError):
     """A pipeline cannot go on; the message says why and what to do."""
+
+
+def check_options(checks: list[tuple[bool, str]], *, height: float | None, focal: float | None,
+                  perception: str, device: str) -> None:  # fmt: skip
+    """Raise :class:`PipelineError` with the message of the first failed check: the
+    pipeline's own ``checks`` (ok, message), then those every pipeline shares (the height in
+    metres, the focal length, the perception and the device)."""
+    shared = [
+        (height is None or 0.5 <= height <= 2.6,
+         f"--height is in metres (0.5 to 2.6), got {height}; 175 cm is 1.75"),
+        (focal is None or focal > 0, f"--focal must be a positive number of pixels, got {focal}"),
+        (perception in PERCEPTION,
+         f"perception must be one of {PERCEPTION}, got {perception!r}"),
+        (device in ("cpu", "cuda"), f"--device must be cpu or cuda, got {device!r}"),
+    ]  # fmt: skip
+    for ok, message in checks + shared:
+        if not ok:
+            raise PipelineError(message)
+    if device == "cuda" and not torch.cuda.is_available():
+        raise PipelineError("--device cuda: no CUDA GPU is available to PyTorch here")
 
 
 class StageTimer:
