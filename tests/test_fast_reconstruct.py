@@ -67,8 +67,8 @@ def test_fast_glb_validates(fast_out: Path) -> None:
 
 
 def test_fast_beats_the_average_body(scene: Path, fast_out: Path) -> None:
-    """The network reads shape from the frames: its avatar is closer to the truth than
-    Anny's average body is (the benchmark's protocol, after a similarity alone)."""
+    """The avatar is closer to the truth than Anny's average body is (the dissertation's
+    metric, after pose and scale alignment)."""
     report = json.loads((fast_out / "report.json").read_text())
     body = load_body_model("anny")
     beta = body.default_shape()[0]
@@ -80,7 +80,7 @@ def test_fast_beats_the_average_body(scene: Path, fast_out: Path) -> None:
     truth = read_synth_scene(scene).ground_truth
     assert truth is not None
     base = ground_truth_error(body, average, truth)
-    assert report["ground_truth"]["surface_error_rigid_mm"] < base.surface_error_rigid_mm
+    assert report["ground_truth"]["surface_error_mm"] < 0.8 * base.surface_error_mm
 
 
 def test_refinement_puts_the_avatar_onto_the_frames(scene: Path, fast_out: Path,

@@ -68,9 +68,14 @@ def test_measurements_do_not_depend_on_the_canonical_orientation(anny: tuple) ->
     for name in MEASUREMENTS:
         assert np.isfinite(before[name].value), name
         assert after[name].value == pytest.approx(before[name].value, rel=1e-6, abs=1e-7), name
-    # the drawings move with the mesh
-    np.testing.assert_allclose(after["chest"].drawing[0], before["chest"].drawing[0] @ R.T + t,
-                               atol=1e-9)  # fmt: skip
+    # the drawings move with the mesh: the same corners (qhull may list them from another one)
+    from scipy.spatial import cKDTree
+
+    expected = before["chest"].drawing[0] @ R.T + t
+    got = after["chest"].drawing[0]
+    assert got.shape == expected.shape
+    assert cKDTree(got).query(expected)[0].max() < 1e-9
+    assert cKDTree(expected).query(got)[0].max() < 1e-9
 
 
 def test_clothing_a_body_uniformly_adds_two_pi_d_to_its_torso_girths(anny: tuple) -> None:
