@@ -935,9 +935,10 @@ def _add_bench(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fast", action="store_true",
                    help="instead, the few-frame table (Paper D, Table D.1): 'reconstruct "
                    "--fast' on the suite's subjects from 1, 2, 4 and 8 frames, before and after "
-                   "refinement, beside the full pipeline on the same 8 frames (about 40 "
-                   "minutes; with --quick one small subject) into OUT/fast.md, OUT/fast.json "
-                   "and the refinement curve OUT/fast_refine.png (Fig. D.7)")  # fmt: skip
+                   "refinement, beside the full pipeline on the same 8 frames (about an hour "
+                   "on 2 cores; with --quick one small subject, about 4 minutes) into "
+                   "OUT/fast.md, OUT/fast.json and the refinement curve OUT/fast_refine.png "
+                   "(Fig. D.7)")  # fmt: skip
     p.add_argument("--weights", type=Path, default=None, metavar="FILE",
                    help="with --photo or --fast: the network's weights (default: the shipped "
                    "ones)")  # fmt: skip
