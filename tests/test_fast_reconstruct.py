@@ -108,6 +108,23 @@ def test_fast_height_is_the_given_height(scene: Path, tmp_path: Path) -> None:
     assert report["scale"]["height_m"] == pytest.approx(1.9, abs=0.01)
 
 
+def test_fast_from_several_image_files(scene: Path, tmp_path: Path) -> None:
+    """INPUT as image files (the scene's frames, in shuffled order, with its focal length):
+    the frames are read in name order, perceived with mediapipe, and the avatar lies on them."""
+    files = sorted((scene / "frames").glob("*.png"))[::4]  # 4 frames over the turn
+    focal = read_synth_scene(scene).camera.K[0, 0]
+    out = tmp_path / "files"
+    assert main(["reconstruct", *map(str, files[::-1]), "-o", str(out), "--fast", "--focal",
+                 f"{focal:.3f}", "--texture-size", "128", "--quiet"]) == 0  # fmt: skip
+    report = json.loads((out / "report.json").read_text())
+    assert report["input"]["kind"] == "images"
+    assert report["input"]["frames"] == 4
+    assert report["input"]["path"].endswith("(4 image files)")
+    assert report["fit"]["median_silhouette_iou"] > 0.75
+    folder = AvatarFolder.load(out)
+    assert len(folder.params.poses) == 4
+
+
 @pytest.mark.parametrize(("args", "message"), [
     (["--fast", "--frames", "9"], "--frames must lie in [1, 8]"),
     (["--weights", "w.safetensors"], "--weights applies to --fast only"),

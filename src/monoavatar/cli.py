@@ -159,8 +159,9 @@ def _add_input_options(p: argparse.ArgumentParser) -> None:
     from monoavatar.fit.pose import PoseSettings
     from monoavatar.pipelines.stages import PERCEPTION, InputSettings
 
-    p.add_argument("input", type=Path,
-                   help="a video file (mp4, mov, avi, webm), a folder of images, a "
+    p.add_argument("input", type=Path, nargs="+", metavar="INPUT",
+                   help="a video file (mp4, mov, avi, webm), a folder of images, several image "
+                   "files (same size; taken in natural order of their names), a "
                    "People-Snapshot folder, or a folder written by 'monoavatar synth'")  # fmt: skip
     p.add_argument("-o", "--output", required=True, type=Path,
                    help="output folder (created; existing result files are replaced)")  # fmt: skip

@@ -13,9 +13,11 @@ from monoavatar.io import (
     FrameSelection,
     InputFormatError,
     InputNotFoundError,
+    input_label,
     load_image,
     read_frames,
     read_image,
+    read_image_files,
     read_image_folder,
 )
 
@@ -124,3 +126,39 @@ def test_folder_errors(tmp_path: Path) -> None:
     (bad / "x.png").write_bytes(b"nope")
     with pytest.raises(EmptyVideoError, match="no selected image could be read"):
         read_image_folder(bad)
+
+
+def test_image_files_in_natural_order_whatever_the_order_given(tmp_path: Path) -> None:
+    """Several files are read like a folder: natural order of their names, a selection."""
+    files = []
+    for k in (10, 2, 1, 3):
+        _save(tmp_path / f"img{k}.jpg", 10 * k)
+        files.append(tmp_path / f"img{k}.jpg")
+    (tmp_path / "img99.png").write_bytes(b"")  # not given: not read
+    frames = read_frames(files)
+    np.testing.assert_allclose(frames.images[:, 0, 0, 0], [10, 20, 30, 100], atol=2)
+    np.testing.assert_array_equal(frames.indices, [0, 1, 2, 3])
+    assert frames.source == str(tmp_path)
+    two = read_image_files(files, FrameSelection(num_keyframes=2))
+    assert len(two) == 2
+    np.testing.assert_allclose(two.images[:, 0, 0, 0], [10, 100], atol=2)
+    # one path in a list is that path
+    assert len(read_frames([tmp_path / "img2.jpg"])) == 1
+    assert input_label([str(f) for f in files]).endswith("(4 image files)")
+    assert input_label(files[:1]) == str(files[0])
+
+
+def test_image_files_errors(tmp_path: Path) -> None:
+    _save(tmp_path / "a.png", 1)
+    _save(tmp_path / "b.png", 2, size=(8, 12))  # portrait: another size
+    (tmp_path / "clip.mp4").write_bytes(b"not a video")
+    with pytest.raises(InputFormatError, match="differs from the first image a.png"):
+        read_frames([tmp_path / "a.png", tmp_path / "b.png"])
+    with pytest.raises(InputFormatError, match="must all be image files"):
+        read_frames([tmp_path / "a.png", tmp_path / "clip.mp4"])
+    with pytest.raises(InputFormatError, match="must all be image files"):
+        read_frames([tmp_path / "a.png", tmp_path])  # a folder among them
+    with pytest.raises(InputNotFoundError):
+        read_frames([tmp_path / "a.png", tmp_path / "missing.png"])
+    with pytest.raises(InputFormatError, match="given twice"):
+        read_frames([tmp_path / "a.png", tmp_path / "." / "a.png"])

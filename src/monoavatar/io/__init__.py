@@ -19,14 +19,14 @@ from monoavatar.core.errors import (
     UnsafePickleError,
 )
 from monoavatar.io.frames import Frames, FrameSelection
-from monoavatar.io.images import load_image, read_image, read_image_folder
+from monoavatar.io.images import load_image, read_image, read_image_files, read_image_folder
 from monoavatar.io.intrinsics import (
     DEFAULT_DIAGONAL_FOV_DEG,
     default_camera,
     default_focal,
     resolve_camera,
 )
-from monoavatar.io.reader import read_frames
+from monoavatar.io.reader import InputPath, input_label, input_paths, read_frames
 from monoavatar.io.video import count_video_frames, read_video
 
 __all__ = [
@@ -39,6 +39,7 @@ __all__ = [
     "InputError",
     "InputFormatError",
     "InputNotFoundError",
+    "InputPath",
     "InputWarning",
     "NotAVideoError",
     "TruncatedVideoError",
@@ -46,9 +47,12 @@ __all__ = [
     "count_video_frames",
     "default_camera",
     "default_focal",
+    "input_label",
+    "input_paths",
     "load_image",
     "read_frames",
     "read_image",
+    "read_image_files",
     "read_image_folder",
     "read_video",
     "resolve_camera",

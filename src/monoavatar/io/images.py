@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import re
 import warnings
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -100,7 +101,6 @@ def read_image_folder(
         of different sizes), CorruptFrameError.
     """
     folder = Path(folder)
-    selection = selection or FrameSelection()
     if not folder.is_dir():
         raise InputNotFoundError(folder, "no such folder")
     files = list_images(folder)
@@ -114,6 +114,54 @@ def read_image_folder(
             folder,
             f"the folder holds no image (looked for {', '.join(IMAGE_EXTENSIONS)}){hint}",
         )
+    return _read_images(files, folder, selection, fps=fps, on_corrupt=on_corrupt,
+                        max_side=max_side)  # fmt: skip
+
+
+def read_image_files(
+    files: Sequence[str | Path],
+    selection: FrameSelection | None = None,
+    *,
+    fps: float | None = None,
+    on_corrupt: OnCorrupt = "skip",
+    max_side: int | None = None,
+) -> Frames:
+    """Several image files as frames, taken in natural sort order of their names as a folder's
+    images are (``img2.jpg`` before ``img10.jpg``, whatever order a shell glob gave); the
+    arguments and errors are those of :func:`read_image_folder`, and an input that is not an
+    image file (by extension) raises InputFormatError.
+
+    Returns:
+        Frames whose ``indices`` are positions in the sorted file list.
+    """
+    paths = [Path(f) for f in files]
+    if not paths:
+        raise ValueError("read_image_files needs at least one file")
+    for path in paths:
+        if not path.exists():
+            raise InputNotFoundError(path, "no such image file")
+        if not path.is_file() or path.suffix.lower() not in IMAGE_EXTENSIONS:
+            kinds = ", ".join(IMAGE_EXTENSIONS)
+            raise InputFormatError(path, f"several inputs must all be image files ({kinds}); "
+                                   "give a video or a folder alone")  # fmt: skip
+    if len({p.resolve() for p in paths}) < len(paths):
+        raise InputFormatError(paths[0], "the same image file is given twice")
+    paths.sort(key=natural_sort_key)
+    return _read_images(paths, paths[0].parent, selection, fps=fps, on_corrupt=on_corrupt,
+                        max_side=max_side)  # fmt: skip
+
+
+def _read_images(
+    files: list[Path],
+    folder: Path,
+    selection: FrameSelection | None,
+    *,
+    fps: float | None,
+    on_corrupt: OnCorrupt,
+    max_side: int | None,
+) -> Frames:
+    """``files`` (sorted, not empty) read as frames; ``folder`` names the source in errors."""
+    selection = selection or FrameSelection()
     if selection.uses_time and fps is None:
         raise ValueError(f"{folder}: a time range needs the folder's fps")
     times = np.arange(len(files)) / fps if fps else np.full(len(files), np.nan)
@@ -134,7 +182,7 @@ def read_image_folder(
         if first_size is not None and size != first_size:
             raise InputFormatError(
                 files[i],
-                f"image size {size[0]}x{size[1]} differs from the folder's first "
+                f"image size {size[0]}x{size[1]} differs from the first "
                 f"image {files[kept[0]].name} ({first_size[0]}x{first_size[1]})",
             )
         first_size = size

@@ -3,7 +3,6 @@ its report and its files, built from the fitted track, shape and texture."""
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -21,6 +20,7 @@ from monoavatar.io.avatar_folder import (
     ScaleSummary,
     TextureSummary,
 )
+from monoavatar.io.reader import InputPath, input_label
 from monoavatar.io.viewer_page import keyframe_atlas
 from monoavatar.pipelines.previews import previews
 from monoavatar.pipelines.stages import Inputs, machine
@@ -29,7 +29,7 @@ from monoavatar.texture.backproject import UVTexture
 __all__ = ["avatar_folder", "reconstruction_report"]
 
 
-def reconstruction_report(input_path: str | Path, body: BodyModel, inputs: Inputs,
+def reconstruction_report(input_path: InputPath, body: BodyModel, inputs: Inputs,
                           track: PoseTrack, shape: CanonicalShape, texture: UVTexture,
                           settings: dict[str, Any], caught: list[str], timings: dict[str, float],
                           *, scale_known: bool) -> Report:  # fmt: skip
@@ -42,7 +42,7 @@ def reconstruction_report(input_path: str | Path, body: BodyModel, inputs: Input
     kp_err, iou = evaluate_fit(body, shape.shape, track.poses, track.translations, obs,
                                offsets=shape.offsets)  # fmt: skip
     return Report(
-        input=InputSummary(path=str(input_path), kind=inputs.kind, frames=len(obs),
+        input=InputSummary(path=input_label(input_path), kind=inputs.kind, frames=len(obs),
                            frame_indices=np.asarray(obs.frame_indices).tolist(),
                            image_size=list(obs.image_size[::-1]),
                            keypoints=obs.keypoint_source),  # fmt: skip

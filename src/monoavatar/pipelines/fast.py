@@ -35,6 +35,7 @@ from monoavatar.fit.pose import PoseTrack, evaluate_fit
 from monoavatar.fit.pose_energy import PoseSettings
 from monoavatar.fit.shape import CanonicalShape, ShapeSettings, fit_consensus_shape
 from monoavatar.io.avatar_folder import Report
+from monoavatar.io.reader import InputPath, input_label
 from monoavatar.learn.fast_capture import FastCapture, match_height, predict_capture, rest_height
 from monoavatar.learn.fast_model import load_fast_network
 from monoavatar.pipelines.export import avatar_folder, reconstruction_report
@@ -186,7 +187,7 @@ def capture_track(capture: FastCapture, inputs: Inputs, body_identity: str, heig
     )  # fmt: skip
 
 
-def fast_reconstruct(input_path: str | Path, out_dir: str | Path,
+def fast_reconstruct(input_path: InputPath, out_dir: str | Path,
                      config: FastConfig | None = None) -> FastResult:  # fmt: skip
     """Run the few-frame pipeline on a video, image folder, image or synth folder and write
     the avatar folder ``out_dir``.
@@ -201,7 +202,7 @@ def fast_reconstruct(input_path: str | Path, out_dir: str | Path,
         return _fast(input_path, out, config)
 
 
-def _fast(input_path: str | Path, out: Path, config: FastConfig) -> FastResult:
+def _fast(input_path: InputPath, out: Path, config: FastConfig) -> FastResult:
     from monoavatar.io.gltf import skinned_mesh_from_body
 
     timer = StageTimer()
@@ -211,7 +212,7 @@ def _fast(input_path: str | Path, out: Path, config: FastConfig) -> FastResult:
             inputs = load_inputs(input_path, config.input, progress=config.progress)
         obs = inputs.observations
         if obs.no_person.all():
-            raise PipelineError(f"{input_path}: no person was found in any of the "
+            raise PipelineError(f"{input_label(input_path)}: no person was found in any of the "
                                 f"{len(obs)} key-frames")  # fmt: skip
         body = load_body_model("anny")
         with timer("network"):
@@ -225,8 +226,8 @@ def _fast(input_path: str | Path, out: Path, config: FastConfig) -> FastResult:
                 capture.shape = match_height(body, capture.shape, capture.offsets, config.height)
             height = rest_height(body, capture.shape, capture.offsets)
         if not capture.placed.any():
-            raise PipelineError(f"{input_path}: no key-frame shows enough of the person's body "
-                                "(keypoints) to place the avatar")  # fmt: skip
+            raise PipelineError(f"{input_label(input_path)}: no key-frame shows enough of the "
+                                "person's body (keypoints) to place the avatar")  # fmt: skip
         track = capture_track(capture, inputs, body.identity, height, config.height is not None,
                               timer.seconds.get("network", 0.0))  # fmt: skip
         shape = _shape(body, capture.shape, capture.offsets, np.flatnonzero(~track.failed))

@@ -28,6 +28,7 @@ from monoavatar.fit.shape import CanonicalShape, ShapeSettings
 from monoavatar.io.avatar_folder import (
     Report,
 )
+from monoavatar.io.reader import InputPath, input_label
 from monoavatar.pipelines.export import avatar_folder, reconstruction_report
 from monoavatar.pipelines.stages import (
     MAX_TEXTURE_SIZE,
@@ -168,7 +169,7 @@ def fit_avatar(body: BodyModel, inputs: Inputs, config: ReconstructConfig, timer
 # -- the pipeline -----------------------------------------------------------------------------
 
 
-def reconstruct(input_path: str | Path, out_dir: str | Path,
+def reconstruct(input_path: InputPath, out_dir: str | Path,
                 config: ReconstructConfig | None = None) -> ReconstructResult:  # fmt: skip
     """Run the whole pipeline on a video, image folder, People-Snapshot or synth folder and
     write the avatar folder ``out_dir``.
@@ -183,7 +184,7 @@ def reconstruct(input_path: str | Path, out_dir: str | Path,
         return _reconstruct(input_path, out, config)
 
 
-def _reconstruct(input_path: str | Path, out: Path, config: ReconstructConfig
+def _reconstruct(input_path: InputPath, out: Path, config: ReconstructConfig
                  ) -> ReconstructResult:  # fmt: skip
     from monoavatar.io.gltf import skinned_mesh_from_body
 
@@ -193,9 +194,10 @@ def _reconstruct(input_path: str | Path, out: Path, config: ReconstructConfig
         with timer("perception"):
             inputs = load_inputs(input_path, config.input, progress=config.progress)
         if inputs.kind == "image":
-            raise PipelineError(f"{input_path} is a single image; reconstruct needs a video (or "
+            name = input_label(input_path)
+            raise PipelineError(f"{name} is a single image; reconstruct needs a video (or "
                                 "frames) of a person turning around. For one photo use "
-                                f"'monoavatar photo {input_path} -o OUT'")  # fmt: skip
+                                f"'monoavatar photo {name} -o OUT'")  # fmt: skip
         body = load_body_model(config.body_model)
         track, shape, texture, sh = fit_avatar(body, inputs, config, timer)
     caught = [f"{record.category.__name__}: {record.message}" for record in records]

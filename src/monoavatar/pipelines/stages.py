@@ -37,6 +37,7 @@ from monoavatar.fit.flow_refine import FlowRefineSettings, refine_poses_with_flo
 from monoavatar.fit.pose import PoseSettings, PoseTrack, evaluate_fit, fit_poses, refine_poses
 from monoavatar.fit.shape import CanonicalShape, ShapeSettings, fit_consensus_shape
 from monoavatar.io.frames import Frames, FrameSelection
+from monoavatar.io.reader import InputPath, input_paths
 from monoavatar.learn.uvmaps import UVLayout
 from monoavatar.perception.observations import Observations
 from monoavatar.perception.pipeline import PerceptionSettings
@@ -215,9 +216,9 @@ class Inputs:
     ground_truth: SynthGroundTruth | None
 
 
-def load_inputs(path: str | Path, settings: InputSettings, *, progress: bool = False) -> Inputs:
-    """Read key-frames and perceive them (or take a folder's own perception); ``progress``
-    shows a bar while the detectors run.
+def load_inputs(path: InputPath, settings: InputSettings, *, progress: bool = False) -> Inputs:
+    """Read key-frames and perceive them (or take a folder's own perception); ``path`` is one
+    path or several image files; ``progress`` shows a bar while the detectors run.
 
     Raises:
         InputNotFoundError: no such file or folder; PipelineError: an option that needs
@@ -230,7 +231,10 @@ def load_inputs(path: str | Path, settings: InputSettings, *, progress: bool = F
     from monoavatar.io.intrinsics import resolve_camera
     from monoavatar.perception import perceive
 
-    path = Path(path)
+    paths = input_paths(path)
+    if len(paths) > 1:
+        return _load_image_files(paths, settings, progress)
+    path = paths[0]
     if not path.exists():
         raise InputNotFoundError(path, "no such file or folder")
     selection = FrameSelection(num_keyframes=settings.frames, first=settings.first,
@@ -262,16 +266,37 @@ def load_inputs(path: str | Path, settings: InputSettings, *, progress: bool = F
             "--perception ground-truth needs a monoavatar synth or People-Snapshot folder"
         )
     frames = read_frames(path, selection, max_side=settings.max_side)
+    kind = "images" if path.is_dir() else ("image" if len(frames) == 1 else "video")
+    return _perceived(frames, kind, settings, progress)
+
+
+def _load_image_files(paths: list[Path], settings: InputSettings, progress: bool) -> Inputs:
+    """Several image files (not a synth or People-Snapshot folder) read and perceived."""
+    from monoavatar.io import read_frames
+
+    if settings.poses == "ground-truth" or settings.perception == "ground-truth":
+        raise PipelineError("ground-truth poses or perception need a monoavatar synth folder "
+                            "as the input, not image files")  # fmt: skip
+    selection = FrameSelection(num_keyframes=settings.frames, first=settings.first,
+                               stop=settings.stop)  # fmt: skip
+    frames = read_frames(paths, selection, max_side=settings.max_side)
+    return _perceived(frames, "images", settings, progress)
+
+
+def _perceived(frames: Frames, kind: str, settings: InputSettings, progress: bool) -> Inputs:
+    """``frames`` of a video or images with the camera ``settings`` give, perceived."""
+    from monoavatar.io.intrinsics import resolve_camera
+    from monoavatar.perception import perceive
+
     if frames.source_size is not None:
         w, h = frames.source_size
-        warnings.warn(f"{path}: frames of {w}x{h} are reconstructed at {frames.width}x"
+        warnings.warn(f"{frames.source}: frames of {w}x{h} are reconstructed at {frames.width}x"
                       f"{frames.height} (--max-side {settings.max_side}; the texture and the "
                       "fit need no more)", InputWarning, stacklevel=2)  # fmt: skip
     focal = None if settings.focal is None else settings.focal * frames.scale
     camera = resolve_camera(frames.width, frames.height, focal_px=focal,
                             camera_path=settings.camera)  # fmt: skip
     obs = perceive(frames, camera, settings.perception_settings, progress=progress)
-    kind = "images" if path.is_dir() else ("image" if len(frames) == 1 else "video")
     return Inputs(frames, obs, kind, None)
 
 
