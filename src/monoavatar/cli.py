@@ -642,6 +642,7 @@ def _add_train(p: argparse.ArgumentParser) -> None:
 
 
 def _add_train_fast(p: argparse.ArgumentParser) -> None:
+    from monoavatar.learn.fast_model import FastNetworkSettings
     from monoavatar.learn.fast_train import FastTrainConfig
 
     p.description = (
@@ -660,16 +661,21 @@ def _add_train_fast(p: argparse.ArgumentParser) -> None:
     _option(p, "--workers", FastTrainConfig, "workers", "processes making the data", type=int)
     _option(p, "--max-minutes", FastTrainConfig, "max_minutes", "stop training after this "
             "many minutes (resume by running the command again)", type=float)  # fmt: skip
+    _option(p, "--decoder", FastNetworkSettings, "decoder", "the offset decoder: 'linear' "
+            "(principal components of the training offsets) or 'uv' (a convolutional map in "
+            "the body's UV layout)", choices=("linear", "uv"))  # fmt: skip
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(run=_run_train_fast)
 
 
 def _run_train_fast(args: argparse.Namespace) -> int:
+    from monoavatar.learn.fast_model import FastNetworkSettings
     from monoavatar.learn.fast_train import FastTrainConfig, train_fast
 
     config = FastTrainConfig(subjects=args.subjects, val=args.val, steps=args.steps,
                              batch=args.batch, seed=args.seed, device=args.device,
                              workers=args.workers, max_minutes=args.max_minutes,
+                             network=FastNetworkSettings(decoder=args.decoder),
                              progress=not args.quiet)  # fmt: skip
     result = train_fast(args.output, config)
     state = "finished" if result.finished else "stopped (run again to resume)"

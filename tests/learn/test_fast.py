@@ -19,9 +19,11 @@ from monoavatar.learn.fast_model import (
     FastNetwork,
     FastNetworkSettings,
     FastOutput,
+    UVOffsetDecoder,
     load_fast_network,
     rotation_6d,
     solve_translation,
+    vertex_uv_samples,
 )
 from monoavatar.learn.fast_train import FastTrainConfig, fast_losses, posed_about_root, train_fast
 from monoavatar.learn.weights import load_weights
@@ -163,6 +165,57 @@ def test_network_takes_any_number_of_frames() -> None:
                                rtol=0)  # fmt: skip
     with pytest.raises(FastModelError, match="expected masks"):
         net(torch.rand(2, 1, 1, 16, 16), torch.rand(2, 1, 33, 3))
+
+
+# Two triangles sharing the edge 0–2; vertex 0 lies on a UV seam (UV 0 in the first face,
+# UV 4 in the second).
+SQUARE_FACES = torch.tensor([[0, 1, 2], [0, 2, 3]])
+SQUARE_FACE_UV = torch.tensor([[0, 1, 2], [4, 2, 3]])
+SQUARE_UV = torch.tensor([[0.1, 0.2], [0.8, 0.15], [0.7, 0.9], [0.2, 0.6], [0.4, 0.3]])
+
+
+def test_uv_decoder_reads_each_vertex_at_its_uvs() -> None:
+    """A map linear in the texel centres, read back: each vertex gets 0.01 · (u, v, 1) at
+    its UVs (the mean of the two on the seam) plus the bias; a closed form."""
+    pairs = vertex_uv_samples(SQUARE_FACES, SQUARE_FACE_UV)
+    assert pairs.tolist() == [[0, 0], [0, 4], [1, 1], [2, 2], [3, 3]]
+    dec = UVOffsetDecoder(4, 4, SQUARE_UV, pairs, 16)
+    centres = (torch.arange(16) + 0.5) / 16
+    image = torch.stack([centres[None].expand(16, -1), centres[:, None].expand(-1, 16),
+                         torch.ones(16, 16)])  # (3, S, S): column, row, 1  # fmt: skip
+    dec.offset_map = lambda z: image[None].expand(len(z), -1, -1, -1)  # type: ignore[method-assign]
+    with torch.no_grad():
+        dec.bias.copy_(torch.arange(12.0).reshape(4, 3) * 1e-3)
+    out = dec(torch.zeros(2, 4))
+    uv = SQUARE_UV.numpy()
+    at = np.stack([(uv[0] + uv[4]) / 2, uv[1], uv[2], uv[3]])
+    expected = 0.01 * np.c_[at, np.ones(4)] + np.arange(12.0).reshape(4, 3) * 1e-3
+    np.testing.assert_allclose(out[1].detach().numpy(), expected, atol=1e-6)
+
+
+def test_uv_decoder_network_starts_at_its_bias_and_loads_back(tmp_path: Path) -> None:
+    from monoavatar.learn.weights import module_tensors, save_weights
+
+    pairs = vertex_uv_samples(SQUARE_FACES, SQUARE_FACE_UV)
+    settings = replace(TINY_NET, decoder="uv", uv_size=8)
+    with pytest.raises(FastModelError, match="needs the body's UVs"):
+        FastNetwork(settings, 4, 20)
+    with pytest.raises(FastModelError, match="do not cover"):
+        FastNetwork(settings, 5, 20, SQUARE_UV, pairs)
+    net = FastNetwork(settings, 4, 20, SQUARE_UV, pairs)
+    masks, kp = torch.rand(2, 3, 1, 32, 32), torch.rand(2, 3, 33, 3)
+    assert torch.equal(net(masks, kp).offsets, torch.zeros(2, 4, 3))  # the last layer is zero
+    with torch.no_grad():
+        for p in net.decoder.parameters():
+            p.add_(0.01 * torch.randn_like(p))
+    path = tmp_path / "uv.safetensors"
+    save_weights(path, module_tensors(net, "network."), settings.metadata())
+    back = load_fast_network(4, 20, path, uv=SQUARE_UV, pairs=pairs)
+    assert back.settings == settings
+    with torch.no_grad():
+        torch.testing.assert_close(back(masks, kp).offsets, net.eval()(masks, kp).offsets)
+    with pytest.raises(FastModelError, match="needs the body's UVs"):
+        load_fast_network(4, 20, path)
 
 
 def _tiny(**changes: object) -> FastTrainConfig:

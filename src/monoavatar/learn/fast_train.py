@@ -40,7 +40,13 @@ from monoavatar.body import BodyModel, lbs
 from monoavatar.core.errors import MonoavatarError
 from monoavatar.core.files import atomic_write_text
 from monoavatar.learn.fast_data import SHARD, FastDataset, FastDataSettings, generate_fast_data
-from monoavatar.learn.fast_model import FastNetwork, FastNetworkSettings, FastOutput
+from monoavatar.learn.fast_model import (
+    FastNetwork,
+    FastNetworkSettings,
+    FastOutput,
+    UVOffsetDecoder,
+    vertex_uv_samples,
+)
 from monoavatar.learn.shards import shard_paths
 
 __all__ = ["FastTrainConfig", "FastTrainResult", "fast_losses", "train_fast", "validate_fast"]
@@ -186,10 +192,16 @@ def step_batch(data: FastDataset, step: int, config: FastTrainConfig) -> dict[st
 
 
 def _pca_decoder(net: FastNetwork, data: FastDataset) -> None:
-    """Initialise the offset decoder from the training offsets: bias their mean, columns the
-    first ``latent`` principal components scaled to unit code variance."""
+    """Initialise the offset decoder from the training offsets: bias their mean, and for the
+    linear decoder columns the first ``latent`` principal components scaled to unit code
+    variance."""
     d = torch.from_numpy(data.arrays["offsets"].reshape(len(data), -1).astype(np.float32))
     mean = d.mean(0)
+    if isinstance(net.decoder, UVOffsetDecoder):
+        with torch.no_grad():
+            net.decoder.bias.copy_(mean.reshape(-1, 3))
+        return
+    assert isinstance(net.decoder, torch.nn.Linear)
     _, s, vh = torch.linalg.svd(d - mean, full_matrices=False)
     k = min(net.settings.latent, len(s))
     with torch.no_grad():
@@ -266,7 +278,8 @@ def train_fast(folder: str | Path, config: FastTrainConfig | None = None) -> Fas
     device = resolve_device(config.device)
     body = load_body_model("anny").to(device)
     torch.manual_seed(config.seed)
-    net = FastNetwork(config.network, body.num_vertices, body.num_joints)
+    net = FastNetwork(config.network, body.num_vertices, body.num_joints, body.uv,
+                      vertex_uv_samples(body.faces, body.face_uv))  # fmt: skip
     _pca_decoder(net, train_data)
     net.to(device)
     opt = torch.optim.Adam(net.parameters(), lr=config.lr)

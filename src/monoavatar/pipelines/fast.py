@@ -37,7 +37,7 @@ from monoavatar.fit.shape import CanonicalShape, ShapeSettings, fit_consensus_sh
 from monoavatar.io.avatar_folder import Report
 from monoavatar.io.reader import InputPath, input_label
 from monoavatar.learn.fast_capture import FastCapture, match_height, predict_capture, rest_height
-from monoavatar.learn.fast_model import load_fast_network
+from monoavatar.learn.fast_model import load_fast_network, vertex_uv_samples
 from monoavatar.pipelines.export import avatar_folder, reconstruction_report
 from monoavatar.pipelines.stages import (
     MAX_TEXTURE_SIZE,
@@ -217,7 +217,8 @@ def _fast(input_path: InputPath, out: Path, config: FastConfig) -> FastResult:
         body = load_body_model("anny")
         with timer("network"):
             net = load_fast_network(body.num_vertices, body.num_joints, config.weights,
-                                    config.device)  # fmt: skip
+                                    config.device, body.uv,
+                                    vertex_uv_samples(body.faces, body.face_uv))  # fmt: skip
             seen = np.flatnonzero(~obs.no_person)
             capture = predict_capture(net, body, obs.masks[seen], obs.keypoints[seen],
                                       obs.camera)  # fmt: skip
