@@ -105,8 +105,9 @@ class UVOffsetDecoder(nn.Module):
     """Offset code z (B, L) → per-vertex offsets (B, V, 3) metres through a map in UV space.
 
     A linear layer makes a 256-channel 4 × 4 image that nearest-neighbour upsampling and
-    3 × 3 convolutions take to (3, S, S) (channels halved per level, at least 16); each vertex reads the map bilinearly at each of its UVs (``grid_sample``, UVs in the
-    glTF convention) and takes the mean over its UVs. The map is in centimetres, added to a
+    3 × 3 convolutions take to (3, S, S) (channels halved per level, at least 16); each vertex
+    reads the map bilinearly at each of its UVs (``grid_sample``, UVs in the glTF convention)
+    and takes the mean over its UVs. The map is in centimetres, added to a
     per-vertex ``bias`` (V, 3) metres (the linear decoder's b: training sets it to the mean
     offsets). The last convolution starts at zero, so the decoder starts at ``bias``.
 

@@ -316,9 +316,9 @@ def train_fast(folder: str | Path, config: FastTrainConfig | None = None) -> Fas
         step += 1
         seconds += time.perf_counter() - start
         for k, v in terms.items():
-            running[k] = running.get(k, 0.0) + float(v)
+            running[k] = running.get(k, 0.0) + float(v.detach())
         bar.update(1)
-        bar.set_postfix(loss=f"{float(terms['loss']):.3f}")
+        bar.set_postfix(loss=f"{float(terms['loss'].detach()):.3f}")
         stop = deadline is not None and time.monotonic() > deadline
         if step % config.validate_every == 0 or step == config.steps or stop:
             validation = validate_fast(body, net, val_data, 8) | validate_fast(body, net,
