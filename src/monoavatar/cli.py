@@ -992,6 +992,79 @@ def _run_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+# -- batch ------------------------------------------------------------------------------------
+
+
+def _add_batch(p: argparse.ArgumentParser) -> None:
+    from monoavatar.batch import COMMANDS, BatchSettings
+
+    p.description = (
+        "Run reconstruct, photo or track on many inputs, each into OUT/<name>/ exactly as the "
+        "single command writes it, with its output in OUT/<name>/log.txt and a summary in "
+        "OUT/batch.json. With Ray installed (pip install 'monoavatar[ray]') every input is a "
+        "task of a local Ray cluster, or of an existing one with --address (OUT must then be "
+        "a folder every node sees); without Ray the inputs run one after another. A failed "
+        "input does not stop the others; a second run skips the complete folders and retries "
+        "the rest; Ctrl-C interrupts the running commands, which leave nothing half-written.")
+    p.add_argument("inputs", nargs="+", metavar="INPUT",
+                   help="videos, image folders, People-Snapshot or synth folders, photos (for "
+                   "--command photo), or .txt files listing them one a line")  # fmt: skip
+    p.add_argument("-o", "--output", required=True, type=Path, help="output folder")
+    _option(p, "--command", BatchSettings, "command", "what to run on each input",
+            choices=tuple(COMMANDS))  # fmt: skip
+    p.add_argument("--options", default="", metavar="'OPTIONS'",
+                   help="the command's own options, quoted as one argument, e.g. "
+                   "--options '--fast --height 1.75' (default: none)")  # fmt: skip
+    _option(p, "--address", BatchSettings, "address", "an existing Ray cluster's address "
+            "(e.g. ray://head:10001; start one with Ray's own 'ray start --head'); without it "
+            "a local cluster on this machine's cores", metavar="ADDR")  # fmt: skip
+    _option(p, "--cpus-per-task", BatchSettings, "cpus_per_task", "cores reserved for "
+            "each input (its numerical libraries use as many threads)", type=int,
+            metavar="N")  # fmt: skip
+    p.add_argument("--no-ray", action="store_true",
+                   help="run the inputs one after another even with Ray installed")
+    p.add_argument("--quiet", action="store_true", help="no status table")
+    p.set_defaults(run=_run_batch)
+
+
+def _run_batch(args: argparse.Namespace) -> int:
+    import shlex
+
+    from monoavatar.batch import BatchSettings, run_batch
+
+    try:
+        options = tuple(shlex.split(args.options))
+    except ValueError as exc:
+        raise CliError(f"--options: {exc}") from exc
+    _check_command_options(args.command, options)
+    settings = BatchSettings(command=args.command, options=options, address=args.address,
+                             cpus_per_task=args.cpus_per_task, use_ray=not args.no_ray,
+                             progress=not args.quiet)  # fmt: skip
+    result = run_batch(args.inputs, args.output, settings)
+    counts = {s: sum(i.status == s for i in result.items)
+              for s in ("done", "skipped", "failed", "interrupted")}  # fmt: skip
+    print(f"{counts['done']} done, {counts['skipped']} complete already, {counts['failed']} "
+          f"failed in {result.seconds:.0f} s; summary: {result.summary}")  # fmt: skip
+    for item in result.failed:
+        print(f"  {item.name}: {item.error} (log: {Path(item.output) / 'log.txt'})")
+    return 1 if result.failed else 0
+
+
+def _check_command_options(command: str, options: tuple[str, ...]) -> None:
+    """Refuse options the command does not have before any input runs."""
+    import contextlib
+    import io
+
+    parser = build_parser(only=command)
+    err = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(err):
+            parser.parse_args([command, "INPUT", "-o", "OUT", *options])
+    except SystemExit as exc:
+        message = err.getvalue().strip().splitlines()[-1:] or ["invalid options"]
+        raise CliError(f"--options for {command}: {message[0].split('error: ')[-1]}") from exc
+
+
 # -- the parser -------------------------------------------------------------------------------
 
 VERBS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None]]] = {
@@ -1015,6 +1088,8 @@ VERBS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None]]] = {
                 "(animated glb)", _add_animate),
     "view": ("look at an avatar, its fit and its motion in a browser (or one HTML file)",
              _add_view),
+    "batch": ("run reconstruct, photo or track on many inputs (Ray tasks when Ray is installed)",
+              _add_batch),
     "bench": ("measure accuracy and speed on a fixed synthetic suite, beside the dissertation",
               _add_bench),
     "synth": ("render a synthetic ground-truth scene (frames, masks, keypoints, meshes)",
