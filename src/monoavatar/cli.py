@@ -930,6 +930,12 @@ def _add_bench(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workers", type=int, default=2, metavar="N",
                    help="threads of the flow and texture stages and of the tracker "
                    "(default: %(default)s)")  # fmt: skip
+    p.add_argument("--address", default=None, metavar="ADDR",
+                   help="run the scenes and runs as Ray tasks (pip install "
+                   "'monoavatar[ray]'): 'local' starts a cluster on this machine's cores, "
+                   "'auto', HOST:6379 or ray://HOST:10001 joins a running one (started with "
+                   "'ray start'; OUT must then be a folder every node sees); each run reserves "
+                   "--workers cores")  # fmt: skip
     p.add_argument("--tracking", action="store_true",
                    help="instead, the tracking table (Paper A, Table A.1): 'monoavatar track' "
                    "on the suite's walk and jog sequences (about 7 minutes; with --quick one "
@@ -960,6 +966,9 @@ def _run_bench(args: argparse.Namespace) -> int:
         raise CliError(f"--track-rounds must be >= 0, got {args.track_rounds}")
     if args.workers < 1:
         raise CliError(f"--workers must be at least 1, got {args.workers}")
+    if args.address is not None and (args.tracking or args.fast or args.photo):
+        raise CliError("--address runs the reconstruction suite; it does not go with "
+                       "--tracking, --fast or --photo")  # fmt: skip
     if args.tracking:
         from monoavatar.bench.tracking import render_tracking_markdown, run_tracking_bench
 
@@ -987,7 +996,7 @@ def _run_bench(args: argparse.Namespace) -> int:
     run_bench(args.output, quick=args.quick, subjects=args.subjects,
               gt_poses=not args.no_gt_poses, progress=not args.quiet,
               measure_only=args.measure_only, track_rounds=args.track_rounds,
-              workers=args.workers)  # fmt: skip
+              workers=args.workers, address=args.address)  # fmt: skip
     print(f"results: {args.output / 'results.md'} and {args.output / 'results.json'}")
     return 0
 

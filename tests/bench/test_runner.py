@@ -10,12 +10,18 @@ from monoavatar.bench.suite import SUITE_VERSION, BenchSuite, SuiteError
 from .fake import FakeReconstruct
 
 
-@pytest.mark.slow
-def test_run_bench_with_fake_reconstruction(tiny_scene, anny32, anny_local, tmp_path,
-                                            monkeypatch, capsys):  # fmt: skip
-    subject, scenes, scene_folder = tiny_scene
+@pytest.fixture
+def tiny_suite(tiny_scene, monkeypatch):
+    """The tiny scene's subject as the whole suite: (subject, scenes folder, scene folder)."""
+    subject = tiny_scene[0]
     tiny = BenchSuite(SUITE_VERSION, "tiny", (subject,))
     monkeypatch.setattr(runner, "get_suite", lambda quick=False: tiny)
+    return tiny_scene
+
+
+@pytest.mark.slow
+def test_run_bench_with_fake_reconstruction(tiny_suite, anny32, anny_local, tmp_path, capsys):
+    subject, scenes, scene_folder = tiny_suite
     fake = FakeReconstruct(anny32, anny_local, avatar="fine", fail_modes=("ground-truth",))
     out = tmp_path / "bench"
     results = runner.run_bench(out, reconstruct=fake, scenes_dir=scenes, progress=True,
@@ -90,12 +96,9 @@ def test_unknown_subject_is_refused_before_any_work(tmp_path):
 
 
 @pytest.mark.slow
-def test_measure_only_remeasures_earlier_runs_without_reconstructing(tiny_scene, anny32,
-                                                                     anny_local, tmp_path,
-                                                                     monkeypatch):  # fmt: skip
-    subject, scenes, _ = tiny_scene
-    tiny = BenchSuite(SUITE_VERSION, "tiny", (subject,))
-    monkeypatch.setattr(runner, "get_suite", lambda quick=False: tiny)
+def test_measure_only_remeasures_earlier_runs_without_reconstructing(tiny_suite, anny32,
+                                                                     anny_local, tmp_path):
+    subject, scenes, _ = tiny_suite
     out = tmp_path / "bench"
     fake = FakeReconstruct(anny32, anny_local, avatar="coarse")
     first = runner.run_bench(out, reconstruct=fake, scenes_dir=scenes, progress=False,
@@ -131,7 +134,40 @@ def test_track_rounds_reach_the_bench_from_the_cli(tmp_path, monkeypatch, capsys
     monkeypatch.setattr(runner, "run_bench", lambda out, **kw: calls.append(kw))
     assert main(["bench", "-o", str(tmp_path), "--quiet"]) == 0
     assert main(["bench", "-o", str(tmp_path), "--quiet", "--track-rounds", "0"]) == 0
-    assert [c["track_rounds"] for c in calls] == [HELDOUT_TRACK_ROUNDS, 0]
+    assert main(["bench", "-o", str(tmp_path), "--quiet", "--address", "local"]) == 0
+    assert [c["track_rounds"] for c in calls] == [HELDOUT_TRACK_ROUNDS, 0, HELDOUT_TRACK_ROUNDS]
+    assert [c["address"] for c in calls] == [None, None, "local"]
     assert main(["bench", "-o", str(tmp_path), "--track-rounds", "-1"]) == 2
     assert "--track-rounds must be >= 0" in capsys.readouterr().err
-    assert len(calls) == 2
+    assert main(["bench", "-o", str(tmp_path), "--photo", "--address", "local"]) == 2
+    assert "--address runs the reconstruction suite" in capsys.readouterr().err
+    assert len(calls) == 3
+
+
+@pytest.mark.slow
+def test_runs_as_ray_tasks_on_a_local_cluster(tiny_suite, anny32, anny_local, tmp_path):
+    """``address="local"``: a real local Ray cluster (started and stopped by the benchmark)
+    runs the scene and the three runs as tasks in its own worker processes; the results come
+    back in the suite's order with the baseline column filled, as one process would write
+    them, and a failing run is recorded, not raised."""
+    pytest.importorskip("ray")
+    subject, scenes, _ = tiny_suite
+    fake = FakeReconstruct(anny32, anny_local, avatar="fine", fail_modes=("ground-truth",))
+    out = tmp_path / "bench"
+    results = runner.run_bench(out, reconstruct=fake, scenes_dir=scenes, progress=False,
+                               track_rounds=0, workers=1, address="local")  # fmt: skip
+    assert fake.calls == []  # the fake was called in the workers, on copies of it
+    assert [r.mode for r in results.runs] == ["estimated", "shape-only", "gt-poses"]
+    ok, gt = results.run(subject.name, "estimated"), results.run(subject.name, "gt-poses")
+    assert ok is not None and ok.status == "ok" and ok.metrics is not None
+    assert ok.metrics.surface.mean_mm < 1e-6 and ok.metrics.shape_only_mm is not None
+    assert ok.peak_rss_mb is not None and ok.peak_rss_mb > 0
+    assert gt is not None and gt.status == "failed" and "fake failure" in (gt.error or "")
+    assert ok.heatmap_png is not None and ok.heatmap_png.is_file()
+    data = json.loads((out / "results.json").read_text())
+    assert data["aggregate"]["estimated"]["all"]["surface_error_mm"] < 1e-6
+    assert data["aggregate"]["gt-poses"]["all"]["failed"] == 1
+    assert not (out / ".cache").exists()
+    import ray
+
+    assert not ray.is_initialized()  # stopped again

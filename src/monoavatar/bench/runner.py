@@ -15,6 +15,11 @@ Each reconstruction runs with a fresh, private stage and perception cache
 every stage. Peak memory is the process's peak resident set size during the call (Linux:
 ``VmHWM`` after resetting it through ``/proc/self/clear_refs``; elsewhere the reconstruction's
 own ``peak_memory_mb``, a process-lifetime peak).
+
+With ``address`` (``bench --address``) every scene and every run is a Ray task: a run waits
+for its scene's task, reserves ``workers`` cores, loads its own body models and ground truth,
+and writes its folders itself; the results are gathered as they arrive, so ``results.json``
+is the same as one process would write, in the suite's order.
 """
 
 from __future__ import annotations
@@ -27,7 +32,7 @@ import time
 import traceback
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -42,7 +47,14 @@ from monoavatar.bench.report import (
     write_heatmap,
     write_results,
 )
-from monoavatar.bench.suite import MODES, BenchMode, BenchSubject, ensure_scene, get_suite
+from monoavatar.bench.suite import (
+    MODES,
+    BenchMode,
+    BenchSubject,
+    SuiteError,
+    ensure_scene,
+    get_suite,
+)
 
 __all__ = ["HEIGHT", "MAX_HELDOUT", "ReconstructFn", "run_bench"]
 
@@ -125,6 +137,17 @@ def _short_error(exc: BaseException) -> str:
     return text if len(text) < 2000 else text[:2000] + "…"
 
 
+@dataclass(frozen=True)
+class _RunOptions:
+    """What every run of one benchmark shares (sent to Ray tasks as it is)."""
+
+    out: Path
+    measure_only: bool
+    track_rounds: int
+    workers: int
+    progress: bool
+
+
 def run_bench(
     out_dir: str | Path,
     *,
@@ -137,6 +160,7 @@ def run_bench(
     measure_only: bool = False,
     track_rounds: int = HELDOUT_TRACK_ROUNDS,
     workers: int = 2,
+    address: str | None = None,
 ) -> BenchResults:
     """Run the benchmark and write ``results.json``, ``results.md`` and heat maps.
 
@@ -158,7 +182,12 @@ def run_bench(
         track_rounds: flow rounds of the tracker that poses the avatar in the held-out frames
             for the texture PSNR (0: the key-frames' poses interpolated).
         workers: threads of the reconstructions' flow and texture stages and of the tracker
-            (results vary between runs by float rounding).
+            (results vary between runs by float rounding); with Ray, the cores each run
+            reserves.
+        address: run every scene and every (subject, mode) run as a Ray task: ``"local"``
+            starts a cluster on this machine's cores, ``"auto"`` or ``host:port`` /
+            ``ray://host:10001`` joins an existing one (``out_dir`` and ``scenes_dir`` must
+            then be folders every node sees). None: one run after another in this process.
 
     Returns:
         :class:`~monoavatar.bench.report.BenchResults`; ``.table`` is the Markdown that
@@ -174,84 +203,178 @@ def run_bench(
     out.mkdir(parents=True, exist_ok=True)
     results = BenchResults(out_dir=out, suite=suite, modes=modes, machine=machine_info(),
                            date=utc_now())  # fmt: skip
-    bodies = BodyCache()
+    options = _RunOptions(out=out, measure_only=measure_only, track_rounds=track_rounds,
+                          workers=workers, progress=progress and address is None)  # fmt: skip
     total = len(suite.subjects) * len(modes)
-    count = 0
-    for subject in suite.subjects:
-        _say(progress, f"bench: scene {subject.name} ({subject.frames} frames, "
-                       f"{subject.width}x{subject.height})")  # fmt: skip
-        scene = ensure_scene(subject, scenes, progress=progress)
-        truth = load_truth(scene, bodies)
-        for mode in modes:
-            count += 1
-            folder = out / "runs" / subject.name / mode.name
-            run = RunResult(subject=subject, mode=mode.name, folder=folder, status="failed")
-            measured_peak = False
-            if measure_only:
-                _say(progress, f"bench [{count}/{total}] {subject.name}, {mode.label}: "
-                               "measuring the earlier output")  # fmt: skip
-            else:
-                if folder.exists():
-                    shutil.rmtree(folder)
-                folder.mkdir(parents=True)
-                _say(progress, f"bench [{count}/{total}] {subject.name}, {mode.label}: "
-                               f"reconstructing {subject.keyframes} key-frames")  # fmt: skip
-                config = _make_config(subject, mode, progress, workers)
-                measured_peak = _reset_peak_rss()
-                t0 = time.perf_counter()
-                try:
-                    with _private_cache(out / ".cache"):
-                        fn(scene, folder, config)
-                except Exception as exc:  # noqa: BLE001 - recorded, the benchmark goes on
-                    run.error = _short_error(exc)
-                    run.wall_seconds = time.perf_counter() - t0
-                    _say(progress, f"  failed: {run.error}")
-                    if progress:
-                        traceback.print_exc(file=sys.stderr)
-                    results.runs.append(run)
-                    write_results(results)
-                    continue
-                run.wall_seconds = time.perf_counter() - t0
-                run.peak_rss_mb = _peak_rss_mb() if measured_peak else None
-            try:
-                metrics, heat = evaluate_reconstruction(folder, truth, bodies,
-                                                        max_heldout=MAX_HELDOUT,
-                                                        perception=mode.perception,
-                                                        track_rounds=track_rounds,
-                                                        workers=workers)  # fmt: skip
-            except Exception as exc:  # noqa: BLE001 - recorded, the benchmark goes on
-                run.error = "evaluation: " + _short_error(exc)
-                _say(progress, f"  failed: {run.error}")
-                results.runs.append(run)
-                write_results(results)
-                continue
-            if run.peak_rss_mb is None:
-                run.peak_rss_mb = metrics.peak_memory_mb
-            if measure_only:
-                run.wall_seconds = metrics.reconstruct_seconds or 0.0
-            run.metrics = metrics
-            run.status = "ok"
-            estimated = results.run(subject.name, "estimated")
-            if mode.name == "shape-only" and estimated is not None and estimated.metrics:
-                # the baseline column of the estimated run
-                estimated.metrics = replace(estimated.metrics,
-                                            shape_only_mm=metrics.surface.mean_mm)  # fmt: skip
-            stem = f"{subject.name}-{mode.name}"
-            run.heatmap_png = out / "heatmaps" / f"{stem}.png"
-            run.heatmap_ply = out / "heatmaps" / f"{stem}.ply"
-            title = (f"{subject.name}, {mode.label}: {metrics.surface.mean_mm:.2f} mm "
-                     f"± {metrics.surface.std_mm:.2f}")  # fmt: skip
-            write_heatmap(heat, run.heatmap_png, run.heatmap_ply, title=title)
-            results.runs.append(run)
-            results.seconds = time.perf_counter() - start
-            write_results(results)
-            _say(progress, f"  {metrics.surface.mean_mm:.2f} mm surface, "
-                           f"{metrics.pa_mpjpe_mm:.1f} mm PA-MPJPE, IoU "
-                           f"{metrics.silhouette_iou:.3f}, {run.wall_seconds:.0f} s")  # fmt: skip
-        del truth
+
+    def record(run: RunResult) -> None:
+        _record(results, run, modes)
+        results.seconds = time.perf_counter() - start
+        write_results(results)
+        label = next(m.label for m in modes if m.name == run.mode)
+        head = f"bench [{len(results.runs)}/{total}] {run.subject.name}, {label}:"
+        if run.status == "ok" and run.metrics is not None:
+            m = run.metrics
+            _say(progress, f"{head} {m.surface.mean_mm:.2f} mm surface, "
+                           f"{m.pa_mpjpe_mm:.1f} mm PA-MPJPE, IoU {m.silhouette_iou:.3f}, "
+                           f"{run.wall_seconds:.0f} s")  # fmt: skip
+        else:
+            _say(progress, f"{head} failed: {run.error}")
+
+    if address is None:
+        bodies = BodyCache()
+        for subject in suite.subjects:
+            _say(progress, f"bench: scene {subject.name} ({subject.frames} frames, "
+                           f"{subject.width}x{subject.height})")  # fmt: skip
+            scene = ensure_scene(subject, scenes, progress=progress)
+            truth = load_truth(scene, bodies)
+            for mode in modes:
+                _say(progress, f"bench: {subject.name}, {mode.label}: "
+                               + ("measuring the earlier output" if measure_only else
+                                  f"reconstructing {subject.keyframes} key-frames"))  # fmt: skip
+                record(_one_run(subject, mode, scene, truth, bodies, fn, options))
+            del truth
+    else:
+        _run_on_ray(address, suite.subjects, modes, scenes, fn, options, record, progress)
     results.seconds = time.perf_counter() - start
     write_results(results)
     shutil.rmtree(out / ".cache", ignore_errors=True)
     if progress:
         print(results.table, flush=True)
     return results
+
+
+def _record(results: BenchResults, run: RunResult, modes: Sequence[BenchMode]) -> None:
+    """Add a finished run, keep the runs in suite and mode order, and fill the estimated run's
+    baseline column (the shape-only run's surface error) once both are there."""
+    results.runs.append(run)
+    subjects = [s.name for s in results.suite.subjects]
+    order = [m.name for m in modes]
+    results.runs.sort(key=lambda r: (subjects.index(r.subject.name), order.index(r.mode)))
+    estimated = results.run(run.subject.name, "estimated")
+    shape_only = results.run(run.subject.name, "shape-only")
+    if (estimated is not None and estimated.metrics is not None and shape_only is not None
+            and shape_only.metrics is not None):  # fmt: skip
+        estimated.metrics = replace(estimated.metrics,
+                                    shape_only_mm=shape_only.metrics.surface.mean_mm)  # fmt: skip
+
+
+def _one_run(subject: BenchSubject, mode: BenchMode, scene: Path, truth: Any,
+             bodies: BodyCache, fn: ReconstructFn, options: _RunOptions) -> RunResult:  # fmt: skip
+    """Reconstruct (unless ``measure_only``) and measure one subject in one mode; a failure
+    is recorded in the result, never raised."""
+    progress, workers = options.progress, options.workers
+    folder = options.out / "runs" / subject.name / mode.name
+    run = RunResult(subject=subject, mode=mode.name, folder=folder, status="failed")
+    measured_peak = False
+    if not options.measure_only:
+        if folder.exists():
+            shutil.rmtree(folder)
+        folder.mkdir(parents=True)
+        config = _make_config(subject, mode, progress, workers)
+        measured_peak = _reset_peak_rss()
+        t0 = time.perf_counter()
+        try:
+            with _private_cache(options.out / ".cache"):
+                fn(scene, folder, config)
+        except Exception as exc:  # noqa: BLE001 - recorded, the benchmark goes on
+            run.error = _short_error(exc)
+            run.wall_seconds = time.perf_counter() - t0
+            if progress:
+                traceback.print_exc(file=sys.stderr)
+            return run
+        run.wall_seconds = time.perf_counter() - t0
+        run.peak_rss_mb = _peak_rss_mb() if measured_peak else None
+    try:
+        metrics, heat = evaluate_reconstruction(folder, truth, bodies, max_heldout=MAX_HELDOUT,
+                                                perception=mode.perception,
+                                                track_rounds=options.track_rounds,
+                                                workers=workers)  # fmt: skip
+    except Exception as exc:  # noqa: BLE001 - recorded, the benchmark goes on
+        run.error = "evaluation: " + _short_error(exc)
+        return run
+    if run.peak_rss_mb is None:
+        run.peak_rss_mb = metrics.peak_memory_mb
+    if options.measure_only:
+        run.wall_seconds = metrics.reconstruct_seconds or 0.0
+    run.metrics = metrics
+    run.status = "ok"
+    stem = f"{subject.name}-{mode.name}"
+    run.heatmap_png = options.out / "heatmaps" / f"{stem}.png"
+    run.heatmap_ply = options.out / "heatmaps" / f"{stem}.ply"
+    title = (f"{subject.name}, {mode.label}: {metrics.surface.mean_mm:.2f} mm "
+             f"± {metrics.surface.std_mm:.2f}")  # fmt: skip
+    write_heatmap(heat, run.heatmap_png, run.heatmap_ply, title=title)
+    return run
+
+
+# -- Ray --------------------------------------------------------------------------------------
+
+
+def _scene_task(subject: BenchSubject, scenes: Path) -> Path:
+    """A Ray task: the subject's scene, generated unless valid."""
+    return ensure_scene(subject, scenes)
+
+
+def _run_task(subject: BenchSubject, mode: BenchMode, scene: Path, fn: ReconstructFn,
+              options: _RunOptions) -> RunResult:  # fmt: skip
+    """A Ray task: one run in a worker of its own, with its own body models and threads."""
+    import torch
+
+    torch.set_num_threads(options.workers)
+    bodies = BodyCache()
+    try:
+        truth = load_truth(scene, bodies)
+    except Exception as exc:  # noqa: BLE001 - recorded, the benchmark goes on
+        folder = options.out / "runs" / subject.name / mode.name
+        return RunResult(subject=subject, mode=mode.name, folder=folder, status="failed",
+                         error="ground truth: " + _short_error(exc))  # fmt: skip
+    return _one_run(subject, mode, scene, truth, bodies, fn, options)
+
+
+def _run_on_ray(address: str, subjects: Sequence[BenchSubject], modes: Sequence[BenchMode],
+                scenes: Path, fn: ReconstructFn, options: _RunOptions,
+                record: Callable[[RunResult], None], progress: bool) -> None:  # fmt: skip
+    """Every scene a Ray task, every run a task that waits for its scene; results recorded as
+    they arrive. A scene that cannot be made fails its subject's runs."""
+    try:
+        import ray
+    except ImportError:
+        raise SuiteError("bench --address needs Ray: pip install 'monoavatar[ray]'") from None
+    import logging
+
+    started = not ray.is_initialized()
+    pending: dict[Any, tuple[BenchSubject, BenchMode]] = {}
+    if started:
+        ray.init(address=address, include_dashboard=False, log_to_driver=False,
+                 logging_level=logging.ERROR)  # fmt: skip
+    try:
+        cpus = int(ray.cluster_resources().get("CPU", 0))
+        need = min(options.workers, max(cpus, 1))
+        _say(progress, f"bench: {len(subjects)} scenes and {len(subjects) * len(modes)} runs as "
+                       f"Ray tasks on {cpus} CPUs ({need} a run)")  # fmt: skip
+        scene_task = ray.remote(num_cpus=1, max_retries=0)(_scene_task)
+        run_task = ray.remote(num_cpus=need, max_retries=0)(_run_task)
+        for subject in subjects:
+            scene = scene_task.remote(subject, scenes)
+            for mode in modes:
+                pending[run_task.remote(subject, mode, scene, fn, options)] = (subject, mode)
+        while pending:
+            ready, _ = ray.wait(list(pending), num_returns=1)
+            for ref in ready:
+                subject, mode = pending.pop(ref)
+                try:
+                    run = ray.get(ref)
+                except Exception as exc:  # noqa: BLE001 - its scene failed, or the worker died
+                    folder = options.out / "runs" / subject.name / mode.name
+                    cause = getattr(exc, "cause", None) or exc
+                    run = RunResult(subject=subject, mode=mode.name, folder=folder,
+                                    status="failed", error=_short_error(cause))  # fmt: skip
+                record(run)
+    except BaseException:
+        for ref in pending:
+            ray.cancel(ref, force=True)
+        raise
+    finally:
+        if started:
+            ray.shutdown()
