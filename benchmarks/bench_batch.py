@@ -62,8 +62,9 @@ def main() -> None:
     rows = {"sequence": sum(_timed([*cli, "reconstruct", str(scene), "-o",
                                     str(runs / "sequence" / scene.name), "--quiet"], cache)
                             for scene in scenes)}  # fmt: skip
-    for label, extra in (("batch (Ray)", []), ("batch --no-ray", ["--no-ray"])):
-        folder = runs / label.replace(" ", "_").strip("()")
+    for label, name, extra in (("batch (Ray)", "ray", []),
+                               ("batch --no-ray", "no-ray", ["--no-ray"])):  # fmt: skip
+        folder = runs / name
         rows[label] = _timed([*cli, "batch", *map(str, scenes), "-o", str(folder), "--quiet",
                               *extra], cache)  # fmt: skip
         failed = [i["name"] for i in json.loads((folder / "batch.json").read_text())["items"]

@@ -79,3 +79,43 @@ def test_cli_says_the_disk_is_full(tmp_path: Path, monkeypatch: pytest.MonkeyPat
     assert "No space left on device" in err and "body.obj" in err
     assert "the disk is full: free some space or write the output elsewhere" in err
     assert "Traceback" not in err
+
+
+def _write_entry_many_times(path: str, value: int) -> None:
+    from monoavatar.perception.cache import save_arrays
+
+    for k in range(40):
+        save_arrays(Path(path), {"value": np.full(2000 + 37 * value + k, value, np.int64)})
+
+
+def test_processes_sharing_a_cache_entry_never_see_a_partial_file(tmp_path: Path) -> None:
+    """Batch workers share one cache folder: four processes write the same entry over and over
+    while this one reads it; every read is one writer's whole array, and no temporary file
+    is left behind."""
+    import multiprocessing
+    import warnings
+
+    from monoavatar.perception.cache import load_arrays
+
+    entry = tmp_path / "cache" / "perception" / "entry.npz"
+    entry.parent.mkdir(parents=True)
+    context = multiprocessing.get_context("spawn")
+    writers = [context.Process(target=_write_entry_many_times, args=(str(entry), v))
+               for v in range(1, 5)]  # fmt: skip
+    for w in writers:
+        w.start()
+    reads = 0
+    while any(w.is_alive() for w in writers) or reads == 0:
+        if entry.exists():
+            with warnings.catch_warnings():
+                warnings.simplefilter("error")  # "ignoring unreadable cache entry" fails
+                data = load_arrays(entry)
+            assert data is not None
+            value = int(data["value"][0])
+            assert 1 <= value <= 4 and (data["value"] == value).all()
+            assert (len(data["value"]) - 2000 - 37 * value) in range(40)
+            reads += 1
+    for w in writers:
+        w.join()
+        assert w.exitcode == 0
+    assert [p.name for p in entry.parent.iterdir()] == ["entry.npz"]
