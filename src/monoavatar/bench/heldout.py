@@ -159,6 +159,10 @@ def _render_heldout(body: BodyModel, vertices: np.ndarray, camera: PinholeCamera
 HELDOUT_TRACK_ROUNDS = 3
 """Flow rounds of the tracker on the held-out frames (as ``reconstruct --flow-rounds``)."""
 
+HELDOUT_TRACK_ITERATIONS = 20
+"""L-BFGS iterations per frame and round of that tracker: fixed here, so that the measurement
+does not move with ``reconstruct``'s own default (``FlowRefineSettings.iterations``)."""
+
 
 def _key_track(recon: AvatarFolder) -> PoseTrack:
     """The reconstruction's key-frame poses as a track (flagged frames from ``report.json``)."""
@@ -233,7 +237,8 @@ def _tracked_psnr(recon: AvatarFolder, body: BodyModel, truth: SubjectTruth,
     for n in (0, rounds) if rounds > 0 else (0,):  # 0 rounds: the interpolated poses are it
         track = track_frames(body, obs, held.frames.images, key_track, p.shape, p.offsets,
                              texture, None if sh is None else sh[0], n,
-                             FlowRefineSettings(workers=workers))  # fmt: skip
+                             FlowRefineSettings(workers=workers,
+                                                iterations=HELDOUT_TRACK_ITERATIONS))  # fmt: skip
         verts, _ = _pose(body, p.shape, track.poses, track.translations, p.offsets)
         pred, covered = _render_heldout(body, verts, p.camera, recon.texture, sh)
         figures.append(_held_out_figures(pred, held.frames.images, held.ground_truth.masks,

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import resource
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -71,6 +71,9 @@ class ReconstructConfig:
         flow_rounds: rounds of key-frame pose refinement by optical flow from the textured
             avatar's render to each frame and by the outline, each followed by the shape and
             the texture again.
+        round_register_rounds: registration rounds (``texture.register_rounds``) of the
+            textures that only the flow rounds render, all but the last; None: the same as
+            the last one's.
         progress: progress bars.
         pose, shape, texture, flow: the stages' settings (the person's height is
             ``pose.height``, metres; the shape-only baseline is ``shape.fit_offsets=False``).
@@ -81,6 +84,7 @@ class ReconstructConfig:
     body_model: str = "anny"
     refine_rounds: int = 0
     flow_rounds: int = 3
+    round_register_rounds: int | None = 0
     progress: bool = True
     pose: PoseSettings = field(default_factory=PoseSettings)
     shape: ShapeSettings = field(default_factory=ShapeSettings)
@@ -96,6 +100,8 @@ class ReconstructConfig:
              f"in memory; 120 is the default), got {self.input.frames}"),
             (self.refine_rounds >= 0, f"--refine-rounds must be >= 0, got {self.refine_rounds}"),
             (self.flow_rounds >= 0, f"--flow-rounds must be >= 0, got {self.flow_rounds}"),
+            (self.round_register_rounds is None or self.round_register_rounds >= 0,
+             f"--round-register-rounds must be >= 0, got {self.round_register_rounds}"),
             (self.flow.workers >= 1 and self.texture.workers >= 1,
              f"--workers must be at least 1, got {min(self.flow.workers, self.texture.workers)}"),
             (16 <= self.texture.size <= MAX_TEXTURE_SIZE,
@@ -150,18 +156,22 @@ def fit_avatar(body: BodyModel, inputs: Inputs, config: ReconstructConfig, timer
         track = pose_stage(body, inputs, config.pose, poses=config.input.poses,
                            progress=config.progress)  # fmt: skip
     track, shape = shape_rounds(body, inputs, track, config, timer)
-    with timer("texture"):
-        texture, sh = texture_stage(body, inputs, track, shape, config.texture,
-                                    progress=config.progress)  # fmt: skip
     rounds = config.flow_rounds if config.input.poses == "fit" else 0
-    for _ in range(rounds):
+    final = config.texture
+    between = final if config.round_register_rounds is None else replace(
+        final, register_rounds=config.round_register_rounds)  # fmt: skip
+    with timer("texture"):
+        texture, sh = texture_stage(body, inputs, track, shape, between if rounds else final,
+                                    progress=config.progress)  # fmt: skip
+    for k in range(rounds):
         with timer("flow"):
             track = flow_stage(body, inputs, track, shape, texture, sh, config.flow, config.pose,
                                progress=config.progress)  # fmt: skip
         with timer("shape"):
             track, shape = shape_stage(body, inputs, track, config.shape)
         with timer("texture"):
-            texture, sh = texture_stage(body, inputs, track, shape, config.texture,
+            texture, sh = texture_stage(body, inputs, track, shape,
+                                        final if k == rounds - 1 else between,
                                         progress=config.progress)  # fmt: skip
     return track, shape, texture, sh
 
