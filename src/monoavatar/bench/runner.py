@@ -351,8 +351,9 @@ def _run_on_ray(address: str, subjects: Sequence[BenchSubject], modes: Sequence[
     try:
         cpus = int(ray.cluster_resources().get("CPU", 0))
         need = min(options.workers, max(cpus, 1))
-        _say(progress, f"bench: {len(subjects)} scenes and {len(subjects) * len(modes)} runs as "
-                       f"Ray tasks on {cpus} CPUs ({need} a run)")  # fmt: skip
+        scenes_said = "1 scene" if len(subjects) == 1 else f"{len(subjects)} scenes"
+        _say(progress, f"bench: {scenes_said} and {len(subjects) * len(modes)} runs as Ray "
+                       f"tasks on {cpus} CPUs ({need} a run)")  # fmt: skip
         scene_task = ray.remote(num_cpus=1, max_retries=0)(_scene_task)
         run_task = ray.remote(num_cpus=need, max_retries=0)(_run_task)
         for subject in subjects:
