@@ -92,7 +92,7 @@ class FlowRefineSettings:
     """
 
     points: int = 1500
-    iterations: int = 10
+    iterations: int = 20
     rigid_iterations: int = 0
     weight: float = 300.0
     sigma: float = 1.0
