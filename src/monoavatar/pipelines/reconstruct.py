@@ -84,7 +84,7 @@ class ReconstructConfig:
     body_model: str = "anny"
     refine_rounds: int = 0
     flow_rounds: int = 3
-    round_register_rounds: int | None = 0
+    round_register_rounds: int | None = None
     progress: bool = True
     pose: PoseSettings = field(default_factory=PoseSettings)
     shape: ShapeSettings = field(default_factory=ShapeSettings)
