@@ -81,9 +81,11 @@ class _Closing:
     _started: bool = False
 
     def close(self) -> None:
-        """Release the mediapipe graph."""
+        """Release the mediapipe graph (its threads are joined with native stderr hidden: a
+        line one of them logs late, after the last result came back, is caught here)."""
         if self._solution is not None:
-            self._solution.close()
+            with native_stderr_hidden():
+                self._solution.close()
             self._solution = None
 
     def __enter__(self) -> Any:

@@ -425,6 +425,9 @@ def perceive(
                 owned = dets
             with native_stderr_hidden():  # mediapipe's graphs log as they start, from threads
                 raw = _run(frames, settings, dets, pre, progress)
+                if owned is not None:  # its threads joined while a late line is still hidden
+                    owned.close()
+                    owned = None
             source = pre.keypoint_source if pre.keypoints is not None else (
                 dets.pose.name if dets.pose is not None else "none"
             )
