@@ -1,6 +1,9 @@
 """run_bench end to end on a tiny suite with a fake reconstruction."""
 
+import contextlib
+import io
 import json
+import shutil
 
 import pytest
 
@@ -19,13 +22,26 @@ def tiny_suite(tiny_scene, monkeypatch):
     return tiny_scene
 
 
-@pytest.mark.slow
-def test_run_bench_with_fake_reconstruction(tiny_suite, anny32, anny_local, tmp_path, capsys):
-    subject, scenes, scene_folder = tiny_suite
+@pytest.fixture(scope="module")
+def fake_bench(tiny_scene, anny32, anny_local, tmp_path_factory):
+    """One fake benchmark run shared by the tests below: (fake, out folder, results, what it
+    printed). The fine avatar; the ground-truth-poses run fails."""
+    subject = tiny_scene[0]
+    tiny = BenchSuite(SUITE_VERSION, "tiny", (subject,))
     fake = FakeReconstruct(anny32, anny_local, avatar="fine", fail_modes=("ground-truth",))
-    out = tmp_path / "bench"
-    results = runner.run_bench(out, reconstruct=fake, scenes_dir=scenes, progress=True,
-                               track_rounds=0)
+    out = tmp_path_factory.mktemp("fake-bench") / "bench"
+    printed = io.StringIO()
+    with pytest.MonkeyPatch.context() as mp, contextlib.redirect_stdout(printed):
+        mp.setattr(runner, "get_suite", lambda quick=False: tiny)
+        results = runner.run_bench(out, reconstruct=fake, scenes_dir=tiny_scene[1],
+                                   progress=True, track_rounds=0)  # fmt: skip
+    return fake, out, results, printed.getvalue()
+
+
+@pytest.mark.slow
+def test_run_bench_with_fake_reconstruction(tiny_scene, fake_bench):
+    subject, _, scene_folder = tiny_scene
+    fake, out, results, printed = fake_bench
 
     # every mode was asked for, with the subject's key-frames and a private cache
     assert len(fake.calls) == 3
@@ -83,7 +99,6 @@ def test_run_bench_with_fake_reconstruction(tiny_suite, anny32, anny_local, tmp_
     assert data["aggregate"]["estimated"]["all"]["surface_error_mm"] < 1e-6
     assert data["aggregate"]["gt-poses"]["all"]["failed"] == 1
     assert not (out / ".cache").exists()
-    printed = capsys.readouterr().out
     assert "5.37 (BUFF)" in printed and printed.strip() == results.table.strip()
 
 
@@ -96,32 +111,31 @@ def test_unknown_subject_is_refused_before_any_work(tmp_path):
 
 
 @pytest.mark.slow
-def test_measure_only_remeasures_earlier_runs_without_reconstructing(tiny_suite, anny32,
-                                                                     anny_local, tmp_path):
+def test_measure_only_remeasures_earlier_runs_without_reconstructing(tiny_suite, fake_bench,
+                                                                     tmp_path):
     subject, scenes, _ = tiny_suite
+    _, first_out, first, _ = fake_bench
     out = tmp_path / "bench"
-    fake = FakeReconstruct(anny32, anny_local, avatar="coarse")
-    first = runner.run_bench(out, reconstruct=fake, scenes_dir=scenes, progress=False,
-                             gt_poses=False, track_rounds=0)  # fmt: skip
+    shutil.copytree(first_out, out)
 
     def never(*args):
         raise AssertionError("reconstruct must not run")
 
     # a run folder that is gone becomes a failed run, not a crash
-    import shutil
-
     shutil.rmtree(out / "runs" / subject.name / "shape-only")
     again = runner.run_bench(out, reconstruct=never, scenes_dir=scenes, progress=False,
                              gt_poses=False, measure_only=True, track_rounds=0)  # fmt: skip
     a, b = first.run(subject.name, "estimated"), again.run(subject.name, "estimated")
     assert a is not None and b is not None and b.status == "ok" and b.metrics is not None
     assert a.metrics is not None
-    assert b.metrics.surface.mean_mm == pytest.approx(a.metrics.surface.mean_mm)
-    assert b.metrics.surface.pose_aligned  # the coarse avatar is on the body's vertices
+    assert b.metrics.surface.mean_mm == pytest.approx(a.metrics.surface.mean_mm, abs=1e-9)
+    assert b.metrics.psnr_db == pytest.approx(a.metrics.psnr_db)
+    assert b.metrics.silhouette_iou == pytest.approx(a.metrics.silhouette_iou)
     assert b.wall_seconds == pytest.approx(12.5)  # the fake's report.json "seconds"
     gone = again.run(subject.name, "shape-only")
     assert gone is not None and gone.status == "failed"
     assert "no such avatar folder" in (gone.error or "")
+    assert again.run(subject.name, "gt-poses") is None  # not asked for this time
 
 
 def test_track_rounds_reach_the_bench_from_the_cli(tmp_path, monkeypatch, capsys):

@@ -16,12 +16,14 @@ from monoavatar.core.camera import PinholeCamera
 from monoavatar.fit import pose_energy as pe
 from monoavatar.fit.prior import apose_prior
 from monoavatar.fit.tracking import (
+    LANDMARK_BONES,
     TrackError,
     TrackSettings,
     _flow_energy,
     closeness_energy,
     flow_targets,
     ray_rotation,
+    rescale_landmarks,
     track_motion,
     world_landmark_energy,
 )
@@ -121,6 +123,33 @@ def test_world_landmark_term_vanishes_at_the_models_own_landmarks() -> None:
     moved = kp.clone()
     moved[0, 15, 2] += 0.1
     assert world_landmark_energy(moved, camera, observed, valid, 10.0).item() > 1e-3
+
+
+def test_landmarks_are_rescaled_to_the_bodys_bone_lengths() -> None:
+    """A detector that saw the model at 0.8 of its size (an average person), with a frame
+    missing, one landmark absent and one bone wildly off in another frame: scaled back by
+    exactly 1 / 0.8, the absent values left NaN, the input untouched."""
+    rng = np.random.default_rng(0)
+    model = rng.normal(scale=0.3, size=(33, 3))
+    valid = np.ones(33, dtype=bool)
+    valid[31] = False  # a landmark the body model lacks
+    world = np.zeros((5, 33, 4))
+    world[..., :3] = 0.8 * (model - 0.5 * (model[23] + model[24]))
+    world[..., 3] = 1.0
+    world[1] = np.nan  # no person
+    world[2, 15] = np.nan  # a wrist not seen
+    world[3, 16, :3] += 5.0  # a forearm off by metres
+    before = world.copy()
+    out = rescale_landmarks(world, model, valid)
+    np.testing.assert_allclose(out[0, :, :3], world[0, :, :3] / 0.8, rtol=1e-12)
+    np.testing.assert_allclose(out[..., 3], world[..., 3])
+    assert np.isnan(out[1]).all() and np.isnan(out[2, 15]).all()
+    np.testing.assert_array_equal(np.isnan(world), np.isnan(before))
+    assert np.allclose(np.nan_to_num(world), np.nan_to_num(before))
+    for i, j in LANDMARK_BONES:
+        if valid[i] and valid[j]:
+            assert np.linalg.norm(out[0, j, :3] - out[0, i, :3]) == pytest.approx(
+                np.linalg.norm(model[j] - model[i]), rel=1e-12)
 
 
 def test_ray_rotation_takes_the_optical_axis_to_the_ray() -> None:

@@ -20,7 +20,8 @@ the translation; :mod:`monoavatar.fit.kalman`) and fitted alone by L-BFGS to (Eq
 * E_3d, the detector's metric 3D landmarks (mediapipe's world landmarks) against the model's,
   both relative to the hips (:func:`world_landmark_energy`), where the observations have them:
   they tell a limb reaching towards the camera from one reaching away, which the 2D terms
-  cannot;
+  cannot. The detector assumes a person of average size; its landmarks are first scaled to
+  the body's bone lengths (:func:`rescale_landmarks`);
 * E_k, mediapipe's 2D keypoints (robust, confidence-weighted) — the dissertation initialised by
   hand; here the keypoints start the track and keep it from drifting.
 
@@ -53,9 +54,9 @@ from monoavatar.fit.prior import apose_prior
 from monoavatar.perception.observations import Observations
 from monoavatar.render.raster import rasterize
 
-__all__ = ["FlowTargets", "MotionTrack", "TrackError", "TrackSettings", "closeness_energy",
-           "flow_targets", "ray_rotation", "smooth_landmarks", "track_motion",
-           "world_landmark_energy"]  # fmt: skip
+__all__ = ["LANDMARK_BONES", "FlowTargets", "MotionTrack", "TrackError", "TrackSettings",
+           "closeness_energy", "flow_targets", "ray_rotation", "rescale_landmarks",
+           "smooth_landmarks", "track_motion", "world_landmark_energy"]  # fmt: skip
 
 
 class TrackError(MonoavatarError, ValueError):
@@ -82,6 +83,7 @@ class TrackSettings:
     world_weight: float = 0.3
     world_sigma: float = 10.0  # Geman-McClure scale, centimetres
     world_smooth: float = 2.0  # temporal Gaussian over the 3D landmarks, σ in frames (0: none)
+    world_rescale: bool = True  # the 3D landmarks scaled to the body (rescale_landmarks)
     closeness_weight: float = 10.0
     closeness_to: str = "prediction"  # "prediction" (the Kalman filters') or "previous" (A.5)
     iterations: int = 20
@@ -333,6 +335,10 @@ def _track(body: BodyModel, obs: Observations, settings: TrackSettings,
     landmarks = None
     if settings.world and obs.world_keypoints is not None:
         landmarks = smooth_landmarks(obs.world_keypoints, settings.world_smooth)
+        if settings.world_rescale:
+            with torch.no_grad():
+                model_kp = body.keypoints((rest + d)[None])[0].double().numpy()
+            landmarks = rescale_landmarks(landmarks, model_kp, body.keypoint_valid.numpy())
     clock = {"predict": 0.0, "flow": 0.0, "fit": 0.0, "refit": 0.0}
     bar = tqdm(range(first, n), desc="track", unit="frame", disable=not progress)
     for i in bar:
@@ -439,6 +445,47 @@ def ray_rotation(direction: Tensor) -> Tensor:
     return torch.eye(3, dtype=direction.dtype) + s * skew + (1 - c) * skew @ skew
 
 
+#: Pairs of mediapipe landmarks whose distance :func:`rescale_landmarks` compares: upper and
+#: lower arms and legs, feet, hips, shoulders and the two sides of the torso.
+LANDMARK_BONES = ((11, 13), (13, 15), (12, 14), (14, 16), (23, 25), (25, 27), (24, 26), (26, 28),
+                  (27, 31), (28, 32), (23, 24), (11, 12), (23, 11), (24, 12))  # fmt: skip
+
+
+def rescale_landmarks(world: np.ndarray, model: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """The detector's metric 3D landmarks (N, 33, 4) (NaN rows where absent) scaled to the
+    body's size, since the detector assumes an average person: by the median over frames of
+    the median over :data:`LANDMARK_BONES` of the model's bone length (its rest-pose landmarks
+    ``model`` (33, 3), metres; ``valid`` (33,) the ones it defines) over the observed one."""
+    a = np.array([pair[0] for pair in LANDMARK_BONES])
+    b = np.array([pair[1] for pair in LANDMARK_BONES])
+    ok = valid[a] & valid[b]
+    a, b = a[ok], b[ok]
+    model_len = np.linalg.norm(model[b] - model[a], axis=-1)  # (K,)
+    seen_len = np.linalg.norm(world[:, b, :3] - world[:, a, :3], axis=-1)  # (N, K)
+    ratios = [np.median(row[np.isfinite(row)]) for row in model_len / np.where(
+        seen_len > 1e-6, seen_len, np.nan) if np.isfinite(row).any()]  # fmt: skip
+    if not ratios:
+        return world.copy()
+    out = world.copy()
+    out[..., :3] *= float(np.median(ratios))
+    return out
+
+
+def _about_the_hips(keypoints: Tensor, camera: PinholeCamera, observed: Tensor,
+                    valid: Tensor) -> tuple[Tensor, Tensor, Tensor]:  # fmt: skip
+    """The model's landmarks (B, 33, 3) world metres and the detector's (B, 33, 4), both in the
+    camera's axes relative to the model's hips (see :func:`world_landmark_energy`), and the
+    detector's confidences (B, 33), zero where the body model lacks the landmark."""
+    R = torch.as_tensor(camera.R, dtype=keypoints.dtype)
+    t = torch.as_tensor(camera.t, dtype=keypoints.dtype)
+    cam = keypoints @ R.T + t
+    hips = 0.5 * (cam[:, _LEFT_HIP] + cam[:, _RIGHT_HIP])
+    turn = torch.stack([ray_rotation(h) for h in hips.detach()])  # (B, 3, 3)
+    obs = torch.nan_to_num(observed[..., :3]) @ turn.transpose(-1, -2)
+    conf = torch.nan_to_num(observed[..., 3]) * valid.to(keypoints.dtype)
+    return cam - hips[:, None], obs, conf
+
+
 def world_landmark_energy(keypoints: Tensor, camera: PinholeCamera, observed: Tensor,
                           valid: Tensor, sigma: float) -> Tensor:  # fmt: skip
     """The model's 3D landmarks against a detector's metric ones, both relative to the midpoint
@@ -452,14 +499,7 @@ def world_landmark_energy(keypoints: Tensor, camera: PinholeCamera, observed: Te
     keypoints (B, 33, 3) world metres; observed (B, 33, 4) (x, y, z metres, confidence);
     valid (33,) bool, the landmarks the body model defines. Returns (B,).
     """
-    R = torch.as_tensor(camera.R, dtype=keypoints.dtype)
-    t = torch.as_tensor(camera.t, dtype=keypoints.dtype)
-    cam = keypoints @ R.T + t
-    hips = 0.5 * (cam[:, _LEFT_HIP] + cam[:, _RIGHT_HIP])
-    rel = cam - hips[:, None]
-    turn = torch.stack([ray_rotation(h) for h in hips.detach()])  # (B, 3, 3)
-    obs = torch.nan_to_num(observed[..., :3]) @ turn.transpose(-1, -2)
-    conf = torch.nan_to_num(observed[..., 3]) * valid.to(keypoints.dtype)
+    rel, obs, conf = _about_the_hips(keypoints, camera, observed, valid)
     r2 = ((rel - obs) * 100.0).pow(2).sum(-1)
     return (conf * energies.geman_mcclure(r2, sigma)).sum(-1) / conf.sum(-1).clamp_min(1e-6)
 
