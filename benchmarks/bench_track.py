@@ -3,7 +3,10 @@
 
 For each scene: the tracker with its defaults, without the flow term, without the 2D keypoint
 term and without the 3D landmarks, and the per-frame pose fitter run frame by frame without
-temporal terms (window 1, no smoothness), the baseline of the smoothness figure. Joint errors
+temporal terms (window 1, no smoothness), the baseline of the smoothness figure; and oracles
+with the scene's truth in place of parts of the observations: ``exact-3d`` (mediapipe's 2D
+keypoints and masks, the true 3D landmarks), ``exact-2d`` (true 2D keypoints with the scene's
+jitter and true masks, no 3D landmarks) and ``exact-2d-3d`` (both). Joint errors
 over 14 joints after a similarity per frame (local) and one per sequence (global), the
 acceleration error, and seconds per frame (perception included, from the cache's second run
 excluded: the first variant pays for perception). Run::
@@ -32,6 +35,25 @@ from monoavatar.pipelines.stages import InputSettings, load_inputs
 from monoavatar.pipelines.track import EVAL_JOINTS
 
 VARIANTS = ("default", "no-flow", "no-keypoints", "no-world", "per-frame")
+ORACLES = ("exact-3d", "exact-2d", "exact-2d-3d")
+
+
+def _oracle_observations(scene: Path, obs, variant: str):  # type: ignore[no-untyped-def]
+    """``obs`` (mediapipe's) with the scene's true 3D landmarks (camera axes, metres about the
+    hips' midpoint, confidence 1) and, for the ``exact-2d`` variants, its true 2D keypoints
+    and masks; the flow stays mediapipe's run's (DIS on the frames)."""
+    from dataclasses import replace as with_
+
+    camera = obs.camera
+    truth = np.load(scene / "keypoints.npz")["keypoints_3d"][obs.frame_indices]
+    cam = truth @ np.asarray(camera.R).T + np.asarray(camera.t)
+    rel = cam - 0.5 * (cam[:, 23] + cam[:, 24])[:, None]
+    world = np.concatenate([rel, np.ones((*rel.shape[:2], 1))], -1).astype(np.float32)
+    if variant == "exact-3d":
+        return with_(obs, world_keypoints=world)
+    exact = load_inputs(scene, InputSettings(frames=100_000, perception="ground-truth"))
+    return with_(exact.observations, flow=obs.flow,
+                 world_keypoints=world if variant == "exact-2d-3d" else None)
 
 
 def _joints_camera(body, shape, poses, trans, camera) -> np.ndarray:  # type: ignore[no-untyped-def]
@@ -61,7 +83,11 @@ def run(scene: Path, variants: tuple[str, ...]) -> list[dict]:
     rows = []
     for variant in variants:
         t0 = time.perf_counter()
-        if variant == "per-frame":
+        if variant in ORACLES:
+            motion = track_motion(body, _oracle_observations(scene, obs, variant),
+                                  TrackSettings(pose=pose))  # fmt: skip
+            shape, poses, trans = motion.shape, motion.poses, motion.translations
+        elif variant == "per-frame":
             track = fit_poses(body, obs, replace(pose, window=1, smooth_weight=0.0))
             shape, poses, trans = track.shape, track.poses, track.translations
         else:
@@ -83,7 +109,8 @@ def run(scene: Path, variants: tuple[str, ...]) -> list[dict]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("scenes", nargs="+", type=Path)
-    parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=VARIANTS)
+    parser.add_argument("--variants", nargs="+", default=list(VARIANTS),
+                        choices=VARIANTS + ORACLES)  # fmt: skip
     parser.add_argument("-o", "--output", type=Path, default=None, help="a .json of the rows")
     args = parser.parse_args()
     rows = [r for scene in args.scenes for r in run(scene, tuple(args.variants))]
