@@ -42,18 +42,16 @@ def _oracle_observations(scene: Path, obs, variant: str):  # type: ignore[no-unt
     """``obs`` (mediapipe's) with the scene's true 3D landmarks (camera axes, metres about the
     hips' midpoint, confidence 1) and, for the ``exact-2d`` variants, its true 2D keypoints
     and masks; the flow stays mediapipe's run's (DIS on the frames)."""
-    from dataclasses import replace as with_
-
     camera = obs.camera
     truth = np.load(scene / "keypoints.npz")["keypoints_3d"][obs.frame_indices]
     cam = truth @ np.asarray(camera.R).T + np.asarray(camera.t)
     rel = cam - 0.5 * (cam[:, 23] + cam[:, 24])[:, None]
     world = np.concatenate([rel, np.ones((*rel.shape[:2], 1))], -1).astype(np.float32)
     if variant == "exact-3d":
-        return with_(obs, world_keypoints=world)
+        return replace(obs, world_keypoints=world)
     exact = load_inputs(scene, InputSettings(frames=100_000, perception="ground-truth"))
-    return with_(exact.observations, flow=obs.flow,
-                 world_keypoints=world if variant == "exact-2d-3d" else None)
+    return replace(exact.observations, flow=obs.flow,
+                   world_keypoints=world if variant == "exact-2d-3d" else None)
 
 
 def _joints_camera(body, shape, poses, trans, camera) -> np.ndarray:  # type: ignore[no-untyped-def]

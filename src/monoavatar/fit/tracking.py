@@ -462,28 +462,13 @@ def rescale_landmarks(world: np.ndarray, model: np.ndarray, valid: np.ndarray) -
     a, b = a[ok], b[ok]
     model_len = np.linalg.norm(model[b] - model[a], axis=-1)  # (K,)
     seen_len = np.linalg.norm(world[:, b, :3] - world[:, a, :3], axis=-1)  # (N, K)
-    ratios = [np.median(row[np.isfinite(row)]) for row in model_len / np.where(
-        seen_len > 1e-6, seen_len, np.nan) if np.isfinite(row).any()]  # fmt: skip
+    ratio = model_len / np.where(seen_len > 1e-6, seen_len, np.nan)  # (N, K)
+    ratios = [np.median(row[np.isfinite(row)]) for row in ratio if np.isfinite(row).any()]
     if not ratios:
         return world.copy()
     out = world.copy()
     out[..., :3] *= float(np.median(ratios))
     return out
-
-
-def _about_the_hips(keypoints: Tensor, camera: PinholeCamera, observed: Tensor,
-                    valid: Tensor) -> tuple[Tensor, Tensor, Tensor]:  # fmt: skip
-    """The model's landmarks (B, 33, 3) world metres and the detector's (B, 33, 4), both in the
-    camera's axes relative to the model's hips (see :func:`world_landmark_energy`), and the
-    detector's confidences (B, 33), zero where the body model lacks the landmark."""
-    R = torch.as_tensor(camera.R, dtype=keypoints.dtype)
-    t = torch.as_tensor(camera.t, dtype=keypoints.dtype)
-    cam = keypoints @ R.T + t
-    hips = 0.5 * (cam[:, _LEFT_HIP] + cam[:, _RIGHT_HIP])
-    turn = torch.stack([ray_rotation(h) for h in hips.detach()])  # (B, 3, 3)
-    obs = torch.nan_to_num(observed[..., :3]) @ turn.transpose(-1, -2)
-    conf = torch.nan_to_num(observed[..., 3]) * valid.to(keypoints.dtype)
-    return cam - hips[:, None], obs, conf
 
 
 def world_landmark_energy(keypoints: Tensor, camera: PinholeCamera, observed: Tensor,
@@ -499,7 +484,14 @@ def world_landmark_energy(keypoints: Tensor, camera: PinholeCamera, observed: Te
     keypoints (B, 33, 3) world metres; observed (B, 33, 4) (x, y, z metres, confidence);
     valid (33,) bool, the landmarks the body model defines. Returns (B,).
     """
-    rel, obs, conf = _about_the_hips(keypoints, camera, observed, valid)
+    R = torch.as_tensor(camera.R, dtype=keypoints.dtype)
+    t = torch.as_tensor(camera.t, dtype=keypoints.dtype)
+    cam = keypoints @ R.T + t
+    hips = 0.5 * (cam[:, _LEFT_HIP] + cam[:, _RIGHT_HIP])
+    rel = cam - hips[:, None]
+    turn = torch.stack([ray_rotation(h) for h in hips.detach()])  # (B, 3, 3)
+    obs = torch.nan_to_num(observed[..., :3]) @ turn.transpose(-1, -2)
+    conf = torch.nan_to_num(observed[..., 3]) * valid.to(keypoints.dtype)
     r2 = ((rel - obs) * 100.0).pow(2).sum(-1)
     return (conf * energies.geman_mcclure(r2, sigma)).sum(-1) / conf.sum(-1).clamp_min(1e-6)
 
