@@ -955,6 +955,10 @@ def _add_bench(p: argparse.ArgumentParser) -> None:
     p.add_argument("--weights", type=Path, default=None, metavar="FILE",
                    help="with --photo or --fast: the network's weights (default: the shipped "
                    "ones)")  # fmt: skip
+    p.add_argument("--split", choices=("dev", "test"), default="test",
+                   help="with --photo: 'dev' runs photos of the validation subjects (choose "
+                   "settings there), 'test' the sealed test photos, only to report a finished "
+                   "change (default: %(default)s)")  # fmt: skip
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(run=_run_bench)
 
@@ -966,6 +970,9 @@ def _run_bench(args: argparse.Namespace) -> int:
         raise CliError(f"--track-rounds must be >= 0, got {args.track_rounds}")
     if args.workers < 1:
         raise CliError(f"--workers must be at least 1, got {args.workers}")
+    if args.split != "test" and not args.photo:
+        raise CliError("--split dev goes with --photo (the other tables have their own fixed "
+                       "scenes)")  # fmt: skip
     if args.address is not None and (args.tracking or args.fast or args.photo):
         raise CliError("--address runs the reconstruction suite; it does not go with "
                        "--tracking, --fast or --photo")  # fmt: skip
@@ -989,7 +996,8 @@ def _run_bench(args: argparse.Namespace) -> int:
         from monoavatar.bench.photo import render_photo_markdown, run_photo_bench
 
         results = run_photo_bench(args.output, quick=args.quick, progress=not args.quiet,
-                                  weights=None if args.weights is None else str(args.weights))
+                                  weights=None if args.weights is None else str(args.weights),
+                                  split=args.split)  # fmt: skip
         print(render_photo_markdown(results["photos"]))
         print(f"results: {args.output / 'photo.md'} and {args.output / 'photo.json'}")
         return 0

@@ -185,3 +185,23 @@ def test_runs_as_ray_tasks_on_a_local_cluster(tiny_suite, anny32, anny_local, tm
     import ray
 
     assert not ray.is_initialized()  # stopped again
+
+
+def test_photo_split_reaches_the_photo_bench(tmp_path, monkeypatch, capsys):
+    """``--split`` picks the photo bench's photos (sealed test by default) and is refused
+    without ``--photo``."""
+    from monoavatar.bench import photo as photo_bench
+    from monoavatar.cli import main
+
+    real = photo_bench.run_photo_bench
+    calls = []
+    monkeypatch.setattr(photo_bench, "run_photo_bench",
+                        lambda out, **kw: calls.append(kw) or {"photos": []})  # fmt: skip
+    assert main(["bench", "-o", str(tmp_path), "--photo", "--quiet"]) == 0
+    assert main(["bench", "-o", str(tmp_path), "--photo", "--quiet", "--split", "dev"]) == 0
+    assert [c["split"] for c in calls] == ["test", "dev"]
+    assert main(["bench", "-o", str(tmp_path), "--split", "dev"]) == 2
+    assert "--split dev goes with --photo" in capsys.readouterr().err
+    assert len(calls) == 2
+    with pytest.raises(ValueError, match="unknown split"):
+        real(tmp_path, split="train", photos=1, progress=False)
