@@ -94,14 +94,14 @@ def run_photo_bench(out_dir: str | Path, *, quick: bool = False, progress: bool 
     from monoavatar.learn.shards import iter_seeds
     from monoavatar.pipelines.photo import PhotoConfig, photo
 
+    if split not in SPLITS:
+        raise ValueError(f"unknown split {split!r}; choose from {sorted(SPLITS)}")
     out = Path(out_dir)
     count = photos if photos is not None else (QUICK_PHOTOS if quick else PHOTOS)
     local_body, body = load_body_model("anny-local"), load_body_model("anny")
     data = PhotoDataSettings()
     rows: list[dict[str, Any]] = []
     layout = None
-    if split not in SPLITS:
-        raise ValueError(f"unknown split {split!r}; choose from {sorted(SPLITS)}")
     for seed in iter_seeds(SPLITS[split], count):
         scene = render_photo(local_body, seed, data)
         folder = out / "photos" / f"{split}-{seed}"
