@@ -84,7 +84,7 @@ def test_missing_file_names_where_to_get_it(tmp_path):
 
 def test_corrupt_files_raise(tmp_path):
     bad = tmp_path / "bad.pkl"
-    bad.write_bytes(os.urandom(200))
+    bad.write_bytes(np.random.default_rng(0).bytes(200))
     with pytest.raises(BodyModelError):
         load_body_model(str(bad))
     bad_npz = tmp_path / "bad.npz"

@@ -66,3 +66,22 @@ def test_bad_files(tmp_path: Path) -> None:
     path.write_bytes(pickle.dumps({"a": 1})[:-3])
     with pytest.raises(InputFormatError, match="not a valid pickle"):
         safe_load(path)
+
+
+def test_corrupt_length_fields_are_format_errors(tmp_path: Path) -> None:
+    path = tmp_path / "huge.pkl"
+    # Protocol 4, BINBYTES8 claiming 2**62 bytes: the unpickler allocates before it reads.
+    path.write_bytes(b"\x80\x04\x8e" + (2**62).to_bytes(8, "little") + b"xx")
+    with pytest.raises(InputFormatError, match="more memory than this machine has"):
+        safe_load(path)
+
+
+def test_random_bytes_only_ever_raise_the_documented_errors(tmp_path: Path) -> None:
+    """Seeded fuzz: about 1 % of random 200-byte files hit MemoryError or OverflowError inside
+    the unpickler; all must come out as the documented InputFormatError/UnsafePickleError."""
+    rng = np.random.default_rng(2026)
+    path = tmp_path / "fuzz.pkl"
+    for _ in range(2000):
+        path.write_bytes(rng.bytes(200))
+        with pytest.raises((InputFormatError, UnsafePickleError)):
+            safe_load(path)

@@ -77,7 +77,9 @@ def safe_load(path: str | Path, resolve: Resolver | None = None) -> Any:
     Raises:
         InputNotFoundError: no such file.
         UnsafePickleError: the pickle names any other class or function.
-        InputFormatError: the file is not a valid pickle.
+        InputFormatError: the file is not a valid pickle, including one whose length fields ask
+            for more memory than exists (a corrupt ``BINBYTES8`` makes the unpickler try to
+            allocate exabytes before it reads a byte).
     """
     path = Path(path)
     if not path.is_file():
@@ -88,5 +90,9 @@ def safe_load(path: str | Path, resolve: Resolver | None = None) -> Any:
         except UnsafePickleError:
             raise
         except (pickle.UnpicklingError, EOFError, ValueError, TypeError, AttributeError,
-                IndexError, KeyError, UnicodeDecodeError) as exc:
+                IndexError, KeyError, UnicodeDecodeError, OverflowError) as exc:
             raise InputFormatError(path, f"not a valid pickle file ({exc})") from exc
+        except MemoryError as exc:
+            raise InputFormatError(
+                path, "not a valid pickle file (a length in it asks for more memory than this "
+                f"machine has; the file is {path.stat().st_size} bytes)") from exc
