@@ -44,6 +44,27 @@ def test_python_stderr_stays_visible_in_a_subprocess() -> None:
     assert run.stderr.split() == ["python", "outer", "python", "inner", "native", "after"]
 
 
+def test_the_stderr_copy_is_closed_with_the_block() -> None:
+    """The block's copy of the terminal is closed when it ends: nothing that held it (a finished
+    progress bar) leaves an 'unclosed file' ResourceWarning behind (Python's dev mode shows
+    them)."""
+    program = "\n".join([
+        "import gc, sys",
+        "from tqdm import tqdm",
+        "from monoavatar.perception.mediapipe_backend import native_stderr_hidden",
+        "with native_stderr_hidden():",
+        "    copy = sys.stderr",
+        "    done = list(tqdm(range(3), file=copy))",
+        "print(copy is not sys.stderr, copy.closed)",
+        "del copy",
+        "gc.collect()",
+    ])  # fmt: skip
+    run = subprocess.run([sys.executable, "-X", "dev", "-c", program], capture_output=True,
+                         text=True, timeout=180, check=True)  # fmt: skip
+    assert run.stdout.split() == ["True", "True"]
+    assert "ResourceWarning" not in run.stderr, run.stderr
+
+
 def test_perception_prints_no_native_log_lines() -> None:
     """Perception of a real photograph of a person (every model starts: detector, landmarks,
     segmentation, face mesh) in a fresh process, as the CLI runs it: no native log lines."""

@@ -47,8 +47,9 @@ def native_stderr_hidden() -> Iterator[None]:
     run, some from their own threads ("Created TensorFlow Lite XNNPACK delegate", "All log
     messages before absl::InitializeLog()", "Feedback manager ..."), read like errors. Python's
     own ``sys.stderr`` (progress bars, warnings) still reaches the terminal: when it is the
-    process's stderr it is pointed at a copy of it for the block. What was hidden is shown if
-    the block raises. Blocks may nest."""
+    process's stderr it is pointed at a copy of it for the block, closed when the block ends
+    (a progress bar made inside the block must end inside it). What was hidden is shown if the
+    block raises. Blocks may nest."""
     sys.stderr.flush()
     saved = os.dup(2)
     python_stderr = sys.stderr
@@ -58,7 +59,7 @@ def native_stderr_hidden() -> Iterator[None]:
         swap = False
     with tempfile.TemporaryFile() as sink:
         os.dup2(sink.fileno(), 2)
-        if swap:  # its own descriptor: it stays valid if a progress bar keeps it after the block
+        if swap:
             sys.stderr = open(os.dup(saved), "w", buffering=1, encoding=python_stderr.encoding,
                               errors="backslashreplace")  # noqa: SIM115
         try:
@@ -70,7 +71,7 @@ def native_stderr_hidden() -> Iterator[None]:
             raise
         finally:
             if swap:
-                sys.stderr.flush()
+                sys.stderr.close()
                 sys.stderr = python_stderr
             os.dup2(saved, 2)
             os.close(saved)
