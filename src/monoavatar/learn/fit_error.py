@@ -39,9 +39,11 @@ def residuals(fit_body: BodyModel, seeds: list[int], local_body: BodyModel,
               settings: PhotoDataSettings, progress: bool = True) -> FitResiduals:  # fmt: skip
     """Fit every photo of ``seeds`` (mediapipe perception, :func:`fit_photo`) and compare."""
     from monoavatar.perception import default_detectors, perceive_image
+    from monoavatar.perception.mediapipe_backend import native_stderr_hidden
 
     rot, trans, shape, skipped = [], [], [], []
-    with default_detectors() as detectors:
+    # the graphs' threads log as they start, after a photo's own hidden block has ended
+    with native_stderr_hidden(), default_detectors() as detectors:
         for seed in tqdm(seeds, desc="fitter error", unit="photo", disable=not progress):
             scene = render_photo(local_body, seed, settings)
             obs = perceive_image(scene.image, scene.camera, detectors=detectors)
