@@ -688,6 +688,7 @@ def _run_train_fast(args: argparse.Namespace) -> int:
 
 
 def _add_train_photo(p: argparse.ArgumentParser) -> None:
+    from monoavatar.learn.photo_model import PhotoNetworkSettings
     from monoavatar.learn.photo_train import PhotoTrainConfig
     from monoavatar.learn.training import TrainSettings
 
@@ -716,6 +717,9 @@ def _add_train_photo(p: argparse.ArgumentParser) -> None:
                    help=f"weight of MS-DSSIM, 0 disables it (default: {defaults.dssim_weight})")
     p.add_argument("--device", choices=("cpu", "cuda"), default=_default(TrainSettings, "device"),
                    help="where to train (default: %(default)s)")
+    _option(p, "--tangential-scale", PhotoNetworkSettings, "tangential_scale", "predict the "
+            "displacement along the body's normal frame, tangential components times this in "
+            "the losses (none: canonical x, y, z)", type=float)  # fmt: skip
     _option(p, "--workers", PhotoTrainConfig, "workers", "processes making the data", type=int)
     _option(p, "--max-minutes", PhotoTrainConfig, "max_minutes", "stop training after this "
             "many minutes (resume by running the command again)", type=float)  # fmt: skip
@@ -732,6 +736,7 @@ def _run_train(args: argparse.Namespace) -> int:
     config.train = replace(config.train, steps=args.steps, batch=args.batch, seed=args.seed,
                            gan_weight=args.gan_weight, dssim_weight=args.dssim_weight,
                            device=args.device)  # fmt: skip
+    config.network = replace(config.network, tangential_scale=args.tangential_scale)
     result = train_photo(args.output, config)
     state = "finished" if result.train.finished else "stopped (run again to resume)"
     print(f"training {state} after {result.train.steps_done} steps; weights: {result.weights}")

@@ -3,6 +3,7 @@ mean maps, loading (and refusing) weights, inference shapes."""
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +36,8 @@ def test_residual_starts_at_the_mean_and_saves_it() -> None:
 
 def test_metadata_round_trip() -> None:
     assert PhotoNetworkSettings.from_metadata(SMALL.metadata()) == SMALL
+    normal = replace(SMALL, tangential_scale=0.25)
+    assert PhotoNetworkSettings.from_metadata(normal.metadata()) == normal
     with pytest.raises(PhotoModelError, match="architecture"):
         PhotoNetworkSettings.from_metadata({"format": "x"})
 
@@ -51,6 +54,29 @@ def test_load_predict_and_refuse(anny32, tmp_path: Path) -> None:  # type: ignor
     assert np.all(maps[~network.layout.chart] == 0)
     with pytest.raises(PhotoModelError, match="no photo-network weights"):
         load_photo_network(anny32, tmp_path / "missing.safetensors")
+
+
+def test_normal_frame_predictions_come_back_canonical(anny32, tmp_path: Path
+                                                      ) -> None:  # type: ignore[no-untyped-def]  # fmt: skip
+    """A network predicting in the normal frame (its prior: 0.4 along the normal, 0.1 along the
+    first tangent, scaled by 0.5): predict() returns canonical vectors 0.4 n + 0.2 t1."""
+    from monoavatar.learn.photo_data import template_frames
+
+    settings = replace(SMALL, tangential_scale=0.5)
+    mean = torch.zeros(6, 64, 64)
+    mean[0], mean[1] = 0.4, 0.1
+    net = settings.build(mean)
+    for p in net.net.parameters():
+        torch.nn.init.zeros_(p)
+    path = tmp_path / "normal.safetensors"
+    export_generator(net, path, settings.metadata())
+    network = load_photo_network(anny32, path)
+    assert network.frames is not None
+    maps = network.predict(np.zeros((64, 64, 3), np.float32), np.zeros((64, 64), bool))
+    frames = template_frames(anny32, network.layout)
+    chart = network.layout.chart
+    expected = 0.4 * frames[chart, 0] + 0.2 * frames[chart, 1]
+    np.testing.assert_allclose(maps[chart, :3], expected, atol=1e-5)
 
 
 def test_shipped_weights_load(anny32) -> None:  # type: ignore[no-untyped-def]

@@ -10,8 +10,11 @@ from monoavatar.learn.uvmaps import (
     DISPLACEMENT_SCALE,
     UVMapError,
     displacement_targets,
+    from_normal_frame,
     rasterise_vertex_values,
     sample_vertex_values,
+    texel_frames,
+    to_normal_frame,
     uv_layout,
 )
 
@@ -80,3 +83,29 @@ def test_wrong_shapes_are_refused(layout, fine_rest) -> None:  # type: ignore[no
         sample_vertex_values(layout, np.zeros((16, 8, 3)))
     with pytest.raises(UVMapError, match="base"):
         displacement_targets(layout, fine_rest[:10], fine_rest[:10])
+
+
+def test_normal_frames(layout, fine_rest) -> None:  # type: ignore[no-untyped-def]
+    """Orthonormal right-handed frames whose first axis is the surface normal of the exact
+    targets; a surface pushed 1 cm along its vertex normals has normal component 1 cm and
+    (almost) no tangential one; to and from the frame is the identity."""
+    from monoavatar.core.geometry import vertex_normals
+
+    frames = texel_frames(layout, fine_rest.numpy())
+    chart = layout.chart
+    f = frames[chart].astype(np.float64)
+    np.testing.assert_allclose(f @ f.transpose(0, 2, 1), np.tile(np.eye(3), (len(f), 1, 1)),
+                               atol=1e-5)  # fmt: skip
+    np.testing.assert_allclose(np.linalg.det(f), 1.0, atol=1e-5)
+    assert np.all(frames[~chart] == 0)
+    normals = vertex_normals(fine_rest, layout.subdivision.faces)
+    pushed = displacement_targets(layout, fine_rest, fine_rest + 0.01 * normals)
+    target_normals = pushed[chart, 3:] / np.linalg.norm(pushed[chart, 3:], axis=1, keepdims=True)
+    assert np.median((f[:, 0] * target_normals).sum(1)) > 0.999
+    local = to_normal_frame(pushed[..., :3], frames, 0.25)[chart] * DISPLACEMENT_SCALE
+    assert np.median(np.abs(local[:, 0] - 0.01)) < 2e-4
+    assert np.median(np.abs(local[:, 1:])) < 2e-4
+    rng = np.random.default_rng(0)
+    disp = rng.normal(size=(2, 128, 128, 3)).astype(np.float32)
+    back = from_normal_frame(to_normal_frame(disp, frames, 0.25), frames, 0.25)
+    np.testing.assert_allclose(back[:, chart], disp[:, chart], atol=1e-5)

@@ -34,7 +34,13 @@ from monoavatar.body import BodyModel, lbs
 from monoavatar.core.camera import PinholeCamera
 from monoavatar.core.errors import MonoavatarError
 from monoavatar.learn.shards import ShardError, generate_shards
-from monoavatar.learn.uvmaps import UVLayout, displacement_targets, rasterise_vertex_values
+from monoavatar.learn.uvmaps import (
+    UVLayout,
+    displacement_targets,
+    rasterise_vertex_values,
+    texel_frames,
+    to_normal_frame,
+)
 from monoavatar.synth.options import BACKGROUNDS, NOISE_LEVELS
 from monoavatar.synth.scene import degrade, make_background, render_frame
 from monoavatar.synth.subjects import Subject, build_subject, sample_subject
@@ -233,6 +239,16 @@ def template_positions(body: BodyModel, layout: UVLayout) -> np.ndarray:
     return rasterise_vertex_values(layout, fine)
 
 
+def template_frames(body: BodyModel, layout: UVLayout) -> np.ndarray:
+    """(S, S, 3, 3) float32 normal frames of the average body at every chart texel
+    (:func:`~monoavatar.learn.uvmaps.texel_frames`): the frame a network predicting
+    displacements "in the normal frame" uses, for every subject alike."""
+    with torch.no_grad():
+        rest, _ = body.rest_shape(body.default_shape(1))
+        fine = layout.subdivision.apply(rest.double())[0].numpy()
+    return texel_frames(layout, fine)
+
+
 def network_input(colour: np.ndarray, visible: np.ndarray, template: np.ndarray) -> np.ndarray:
     """(7, S, S) float32: partial texture colour (S, S, 3) in [0, 1] mapped to [−1, 1] and
     zeroed where unseen, visibility (S, S), template positions (S, S, 3) metres."""
@@ -363,6 +379,15 @@ class PhotoDataset(torch.utils.data.Dataset[dict[str, Tensor]]):
 
     def __len__(self) -> int:
         return len(self.inputs)
+
+    def to_normal_frame(self, frames: np.ndarray, tangential_scale: float) -> None:
+        """Express the targets' displacement channels in ``frames`` (S, S, 3, 3), tangential
+        components times ``tangential_scale`` (:func:`~monoavatar.learn.uvmaps.to_normal_frame`),
+        in place."""
+        for k in range(0, len(self), 64):
+            disp = self.targets[k : k + 64, :3].transpose(0, 2, 3, 1)
+            local = to_normal_frame(disp, frames, tangential_scale)
+            self.targets[k : k + 64, :3] = local.transpose(0, 3, 1, 2)
 
     def mean_target(self) -> Tensor:
         """(6, S, S) float32: the mean target over the samples, on the weighted texels."""

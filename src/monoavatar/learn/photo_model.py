@@ -5,7 +5,7 @@ network), and inference on one photo's partial texture."""
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from importlib import resources
 from pathlib import Path
 
@@ -20,10 +20,11 @@ from monoavatar.learn.photo_data import (
     INPUT_CHANNELS,
     TARGET_CHANNELS,
     network_input,
+    template_frames,
     template_positions,
 )
 from monoavatar.learn.training import load_generator
-from monoavatar.learn.uvmaps import UVLayout, uv_layout
+from monoavatar.learn.uvmaps import UVLayout, from_normal_frame, uv_layout
 
 __all__ = ["PhotoNetwork", "PhotoNetworkSettings", "default_weights", "load_photo_network"]
 
@@ -43,6 +44,10 @@ class PhotoNetworkSettings:
         map_size: S, side of the UV maps, texels.
         residual_scale: the U-Net predicts the maps' deviation from the training set's mean
             maps, times this (:class:`~monoavatar.learn.networks.ResidualOverMean`).
+        tangential_scale: None: the displacement channels are canonical x, y, z; a number
+            ``s``: they are the components along the average body's normal frame at each texel,
+            tangential ones times ``s`` (:func:`~monoavatar.learn.uvmaps.to_normal_frame`), so
+            the losses weigh tangential error, which hardly moves the surface, by ``s``.
     """
 
     base: int = 32
@@ -50,6 +55,7 @@ class PhotoNetworkSettings:
     max_channels: int = 256
     map_size: int = 256
     residual_scale: float = 0.1
+    tangential_scale: float | None = None
 
     def build(self, mean: torch.Tensor | None = None) -> nn.Module:
         """The generator; ``mean`` (6, S, S) the prior maps (zeros until loaded)."""
@@ -60,17 +66,16 @@ class PhotoNetworkSettings:
         return ResidualOverMean(net, mean, self.residual_scale)
 
     def metadata(self) -> dict[str, str]:
-        return {"architecture": json.dumps({"base": self.base, "depth": self.depth,
-                                            "max_channels": self.max_channels,
-                                            "map_size": self.map_size,
-                                            "residual_scale": self.residual_scale})}  # fmt: skip
+        return {"architecture": json.dumps(asdict(self))}
 
     @staticmethod
     def from_metadata(meta: dict[str, str]) -> PhotoNetworkSettings:
         try:
             a = json.loads(meta["architecture"])
-            return PhotoNetworkSettings(int(a["base"]), int(a["depth"]), int(a["max_channels"]),
-                                        int(a["map_size"]), float(a["residual_scale"]))  # fmt: skip
+            tangential = a.get("tangential_scale")  # absent: weights from before the option
+            return PhotoNetworkSettings(
+                int(a["base"]), int(a["depth"]), int(a["max_channels"]), int(a["map_size"]),
+                float(a["residual_scale"]), None if tangential is None else float(tangential))
         except (KeyError, TypeError, ValueError) as exc:
             raise PhotoModelError(f"the weights name no photo-network architecture ({exc})"
                                   ) from exc  # fmt: skip
@@ -91,6 +96,7 @@ class PhotoNetwork:
     template: np.ndarray  # (S, S, 3) metres
     metadata: dict[str, str]
     path: Path
+    frames: np.ndarray | None = None  # (S, S, 3, 3) when the network predicts in normal frames
 
     def predict(self, colour: np.ndarray, visible: np.ndarray) -> np.ndarray:
         """(S, S, 6) float32 maps (displacement / DISPLACEMENT_SCALE, normals; canonical frame)
@@ -99,6 +105,9 @@ class PhotoNetwork:
         with torch.no_grad():
             y = self.generator(x.to(next(self.generator.parameters()).device))
         maps = y[0].float().cpu().numpy().transpose(1, 2, 0)
+        if self.frames is not None and self.settings.tangential_scale is not None:
+            maps[..., :3] = from_normal_frame(maps[..., :3], self.frames,
+                                              self.settings.tangential_scale)  # fmt: skip
         maps[~self.layout.chart] = 0.0
         return np.ascontiguousarray(maps)
 
@@ -122,4 +131,6 @@ def load_photo_network(body: BodyModel, path: str | Path | None = None,
     load_generator(generator, p)
     generator.eval().to(device)
     layout = uv_layout(body, settings.map_size)
-    return PhotoNetwork(generator, settings, layout, template_positions(body, layout), meta, p)
+    frames = template_frames(body, layout) if settings.tangential_scale is not None else None
+    return PhotoNetwork(generator, settings, layout, template_positions(body, layout), meta, p,
+                        frames)  # fmt: skip

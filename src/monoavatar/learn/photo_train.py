@@ -136,6 +136,15 @@ def train_photo(folder: str | Path, config: PhotoTrainConfig | None = None) -> P
     seconds["data"] = time.perf_counter() - t0
     train_set = PhotoDataset(shards["train"][: -(-config.samples // 25)])
     val_set = PhotoDataset(shards["val"][: -(-config.val // 25)])
+    if config.network.tangential_scale is not None:
+        from monoavatar.body import load_body_model
+        from monoavatar.learn.photo_data import template_frames
+        from monoavatar.learn.uvmaps import uv_layout
+
+        body = load_body_model("anny")
+        frames = template_frames(body, uv_layout(body, config.data.map_size))
+        for dataset in (train_set, val_set):
+            dataset.to_normal_frame(frames, config.network.tangential_scale)
     torch.manual_seed(config.train.seed)
     generator = config.network.build(train_set.mean_target())
     t0 = time.perf_counter()

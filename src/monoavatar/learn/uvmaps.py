@@ -30,8 +30,11 @@ __all__ = [
     "DISPLACEMENT_SCALE",
     "UVLayout",
     "displacement_targets",
+    "from_normal_frame",
     "rasterise_vertex_values",
     "sample_vertex_values",
+    "texel_frames",
+    "to_normal_frame",
     "uv_layout",
 ]
 
@@ -160,3 +163,40 @@ def displacement_targets(layout: UVLayout, base: torch.Tensor, surface: torch.Te
     disp = (surface - base).double().numpy() / DISPLACEMENT_SCALE
     normals = vertex_normals(surface.double(), layout.subdivision.faces).numpy()
     return rasterise_vertex_values(layout, np.concatenate([disp, normals], axis=1))
+
+
+def texel_frames(layout: UVLayout, fine_vertices: np.ndarray) -> np.ndarray:
+    """(S, S, 3, 3) float32 orthonormal frame of the surface ``fine_vertices`` (V_f, 3) at each
+    chart texel, canonical frame; rows: the outward unit normal ``n``, a tangent ``t1`` (the
+    body's up axis +y with its normal part removed; +x where the normal is nearly vertical) and
+    ``t2 = n × t1``. Zero outside the charts."""
+    v = torch.as_tensor(np.asarray(fine_vertices, np.float64))
+    if v.shape != (layout.num_vertices, 3):
+        raise UVMapError(f"vertices: expected ({layout.num_vertices}, 3), got {tuple(v.shape)}")
+    n = rasterise_vertex_values(layout, vertex_normals(v, layout.subdivision.faces).numpy())
+    n = n.astype(np.float64)
+    n /= np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
+    ref = np.where(np.abs(n[..., 1:2]) < 0.9, [0.0, 1.0, 0.0], [1.0, 0.0, 0.0])
+    t1 = ref - (ref * n).sum(-1, keepdims=True) * n
+    t1 /= np.maximum(np.linalg.norm(t1, axis=-1, keepdims=True), 1e-12)
+    frames = np.stack([n, t1, np.cross(n, t1)], axis=-2)
+    frames[~layout.chart] = 0.0
+    return frames.astype(np.float32)
+
+
+def to_normal_frame(disp: np.ndarray, frames: np.ndarray, tangential_scale: float
+                    ) -> np.ndarray:  # fmt: skip
+    """(..., 3) displacement components along the texels' frames (S, S, 3, 3) of
+    :func:`texel_frames`: ``(d·n, s d·t1, s d·t2)`` with ``s = tangential_scale``, so an L1
+    loss on them weighs tangential error by ``s``. ``disp`` is (S, S, 3) or (N, S, S, 3)."""
+    local = np.einsum("...ij,...j->...i", frames, disp)
+    local[..., 1:] *= tangential_scale
+    return local.astype(disp.dtype, copy=False)
+
+
+def from_normal_frame(local: np.ndarray, frames: np.ndarray, tangential_scale: float
+                      ) -> np.ndarray:  # fmt: skip
+    """The canonical displacement (..., 3) back from :func:`to_normal_frame`'s components."""
+    unscaled = np.array(local, dtype=np.float64)
+    unscaled[..., 1:] /= tangential_scale
+    return np.einsum("...ji,...j->...i", frames.astype(np.float64), unscaled).astype(local.dtype)
