@@ -233,9 +233,7 @@ def partial_texture(vertices: np.ndarray, body: BodyModel, image: np.ndarray, ma
 def template_positions(body: BodyModel, layout: UVLayout) -> np.ndarray:
     """(S, S, 3) float32 canonical position of every chart texel on the average body, metres
     (0 outside the charts): where on the body each texel is."""
-    with torch.no_grad():
-        rest, _ = body.rest_shape(body.default_shape(1))
-        fine = layout.subdivision.apply(rest.double())[0].numpy()
+    fine = base_fine_vertices(body, layout, body.default_shape(1)).numpy()
     return rasterise_vertex_values(layout, fine)
 
 
@@ -243,10 +241,7 @@ def template_frames(body: BodyModel, layout: UVLayout) -> np.ndarray:
     """(S, S, 3, 3) float32 normal frames of the average body at every chart texel
     (:func:`~monoavatar.learn.uvmaps.texel_frames`): the frame a network predicting
     displacements "in the normal frame" uses, for every subject alike."""
-    with torch.no_grad():
-        rest, _ = body.rest_shape(body.default_shape(1))
-        fine = layout.subdivision.apply(rest.double())[0].numpy()
-    return texel_frames(layout, fine)
+    return texel_frames(layout, base_fine_vertices(body, layout, body.default_shape(1)).numpy())
 
 
 def network_input(colour: np.ndarray, visible: np.ndarray, template: np.ndarray) -> np.ndarray:

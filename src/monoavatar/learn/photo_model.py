@@ -72,7 +72,7 @@ class PhotoNetworkSettings:
     def from_metadata(meta: dict[str, str]) -> PhotoNetworkSettings:
         try:
             a = json.loads(meta["architecture"])
-            tangential = a.get("tangential_scale")  # absent: weights from before the option
+            tangential = a.get("tangential_scale")  # absent: canonical x, y, z
             return PhotoNetworkSettings(
                 int(a["base"]), int(a["depth"]), int(a["max_channels"]), int(a["map_size"]),
                 float(a["residual_scale"]), None if tangential is None else float(tangential))
