@@ -1,8 +1,11 @@
 """Tracking accuracy, ablations, smoothness and speed (Paper A, Table A.1 and Fig. A.4) on
 ``monoavatar synth walk`` / ``jog`` scenes, mediapipe perception on the rendered frames.
 
-For each scene: the tracker with its defaults, without the flow term, without the 2D keypoint
-term and without the 3D landmarks, and the per-frame pose fitter run frame by frame without
+For each scene: the tracker with mediapipe's 3D landmarks (``default``: the fit layer's
+defaults on the perception as it comes) and with our lifter's (``lifter``: what ``monoavatar
+track`` does by default; ``--lifter FILE`` for other weights), each with the mean error of
+its 3D limb landmarks; without the flow term, without the 2D keypoint term and without the 3D
+landmarks; and the per-frame pose fitter run frame by frame without
 temporal terms (window 1, no smoothness), the baseline of the smoothness figure; and oracles
 with the scene's truth in place of parts of the observations: ``exact-3d`` (mediapipe's 2D
 keypoints and masks, the true 3D landmarks), ``exact-2d`` (true 2D keypoints with the scene's
@@ -32,9 +35,11 @@ from monoavatar.fit.pose import PoseSettings, fit_poses
 from monoavatar.fit.tracking import TrackSettings, track_motion
 from monoavatar.perception.pipeline import PerceptionSettings
 from monoavatar.pipelines.stages import InputSettings, load_inputs
-from monoavatar.pipelines.track import EVAL_JOINTS
+from monoavatar.pipelines.track import EVAL_JOINTS, TrackConfig, lifted
 
-VARIANTS = ("default", "no-flow", "no-keypoints", "no-world", "per-frame")
+VARIANTS = ("default", "lifter", "no-flow", "no-keypoints", "no-world", "per-frame")
+#: The 12 limb landmarks of the 3D landmark figures (shoulders to ankles).
+LIMB_LANDMARKS = [11, 12, 13, 14, 15, 16, 23, 24, 25, 26, 27, 28]
 ORACLES = ("exact-3d", "exact-2d", "exact-2d-3d")
 
 
@@ -54,6 +59,35 @@ def _oracle_observations(scene: Path, obs, variant: str):  # type: ignore[no-unt
                    world_keypoints=world if variant == "exact-2d-3d" else None)
 
 
+def landmark_errors(world: np.ndarray, truth_rel: np.ndarray) -> dict[str, float]:
+    """Mean 3D error (mm) of the limb landmarks about the hips, after the best scale per frame
+    and after a similarity per frame; ``world`` (N, 33, 4) hip-ray frame, ``truth_rel``
+    (N, 33, 3) the truth about the hips in the same axes."""
+    from monoavatar.eval.alignment import align_similarity
+
+    scaled, similar = [], []
+    for w, t in zip(world[:, LIMB_LANDMARKS, :3], truth_rel[:, LIMB_LANDMARKS], strict=True):
+        if not np.isfinite(w).all():
+            continue
+        s = float((w * t).sum() / max((w * w).sum(), 1e-12))
+        scaled.append(np.linalg.norm(s * w - t, axis=-1).mean())
+        a = align_similarity(w, t)
+        similar.append(np.linalg.norm(a.scale * w @ a.rotation.T + a.translation - t,
+                                      axis=-1).mean())  # fmt: skip
+    return {"landmarks_scaled_mm": 1000 * float(np.mean(scaled)),
+            "landmarks_similarity_mm": 1000 * float(np.mean(similar))}
+
+
+def _truth_landmarks(scene: Path, obs) -> np.ndarray:  # type: ignore[no-untyped-def]
+    """(N, 33, 3) the scene's true landmarks about the hips, in each frame's hip-ray frame."""
+    from monoavatar.learn.lifter import hip_ray_targets
+
+    camera = obs.camera
+    truth = np.load(scene / "keypoints.npz")["keypoints_3d"][obs.frame_indices]
+    cam = truth @ np.asarray(camera.R).T + np.asarray(camera.t)
+    return hip_ray_targets(torch.as_tensor(cam)).numpy()
+
+
 def _joints_camera(body, shape, poses, trans, camera) -> np.ndarray:  # type: ignore[no-untyped-def]
     n = len(poses)
     with torch.no_grad():
@@ -63,7 +97,8 @@ def _joints_camera(body, shape, poses, trans, camera) -> np.ndarray:  # type: ig
     return out.joints.double().numpy() @ np.asarray(camera.R).T + np.asarray(camera.t)
 
 
-def run(scene: Path, variants: tuple[str, ...]) -> list[dict]:
+def run(scene: Path, variants: tuple[str, ...], lifter: Path | None = None,
+        world_weight: float | None = None) -> list[dict]:  # fmt: skip
     t0 = time.perf_counter()
     settings = InputSettings(frames=100_000, perception="mediapipe",
                              perception_settings=PerceptionSettings(flow="dis", face=False))
@@ -79,9 +114,25 @@ def run(scene: Path, variants: tuple[str, ...]) -> list[dict]:
     sel = [body.joint_index(j) for j in EVAL_JOINTS]
     pose = PoseSettings(height=height)
     rows = []
+    truth_rel = _truth_landmarks(scene, obs)
     for variant in variants:
         t0 = time.perf_counter()
-        if variant in ORACLES:
+        extra: dict[str, float] = {}
+        if variant in ("default", "lifter"):
+            if variant == "lifter":
+                obs_v = lifted(obs, TrackConfig(lifter_weights=None if lifter is None
+                                                else str(lifter),
+                                                track=TrackSettings(pose=pose)))  # fmt: skip
+            else:
+                obs_v = obs
+            if obs_v.world_keypoints is not None:
+                extra = landmark_errors(obs_v.world_keypoints, truth_rel)
+            ts = TrackSettings(pose=pose)
+            if world_weight is not None:
+                ts = replace(ts, world_weight=world_weight)
+            motion = track_motion(body, obs_v, ts)
+            shape, poses, trans = motion.shape, motion.poses, motion.translations
+        elif variant in ORACLES:
             motion = track_motion(body, _oracle_observations(scene, obs, variant),
                                   TrackSettings(pose=pose))  # fmt: skip
             shape, poses, trans = motion.shape, motion.poses, motion.translations
@@ -97,7 +148,7 @@ def run(scene: Path, variants: tuple[str, ...]) -> list[dict]:
         pred = _joints_camera(body, shape, poses, trans, obs.camera)[:, sel]
         errors = tracking_errors(pred, truth[:, sel])
         rows.append({"scene": scene.name, "kind": info["config"]["kind"], "variant": variant,
-                     **{k: round(v, 1) for k, v in errors.items()},
+                     **{k: round(v, 1) for k, v in (errors | extra).items()},
                      "s_per_frame": round((seconds + perception_s) / len(obs), 3),
                      "perception_s_per_frame": round(perception_s / len(obs), 3)})  # fmt: skip
         print(json.dumps(rows[-1]), flush=True)
@@ -110,8 +161,14 @@ def main() -> None:
     parser.add_argument("--variants", nargs="+", default=list(VARIANTS),
                         choices=VARIANTS + ORACLES)  # fmt: skip
     parser.add_argument("-o", "--output", type=Path, default=None, help="a .json of the rows")
+    parser.add_argument("--lifter", type=Path, default=None,
+                        help="lifter weights (default: the shipped ones)")
+    parser.add_argument("--world-weight", type=float, default=None,
+                        help="weight of the 3D landmark term of the default and lifter "
+                        "variants (default: TrackSettings')")  # fmt: skip
     args = parser.parse_args()
-    rows = [r for scene in args.scenes for r in run(scene, tuple(args.variants))]
+    rows = [r for scene in args.scenes
+            for r in run(scene, tuple(args.variants), args.lifter, args.world_weight)]
     print("| scene | variant | local mm | global mm | accel mm/frame² | s/frame |")
     print("|---|---|---|---|---|---|")
     for r in rows:

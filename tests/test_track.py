@@ -64,6 +64,7 @@ def test_track_writes_the_motion_with_documented_keys_and_units(walk: Path, trac
     assert report["input"]["frames"] == FRAMES and report["frames_failed"] == 0
     assert set(report["ground_truth"]) >= {"local_mm", "global_mm", "acceleration_mm_per_frame2"}
     assert report["ground_truth"]["local_mm"] < 150.0
+    assert report["landmarks_3d"] == "lifter" and "lift" in report["timings"]
     # a small person is warned about, a large one is not
     masks = [np.asarray(Image.open(f)) > 0 for f in sorted((walk / "masks").glob("*.png"))]
     tall = np.median([np.ptp(np.flatnonzero(m.any(axis=1))) + 1 for m in masks])
@@ -131,6 +132,16 @@ def test_untrackable_inputs_exit_2_and_leave_nothing(walk: Path, tmp_path: Path,
     assert main(["track", str(walk), "-o", str(busy), "--quiet"]) == 2
     assert "not empty" in capsys.readouterr().err
     assert (busy / "keep.txt").read_text() == "mine"
+
+
+def test_an_unknown_landmark_source_is_refused_before_any_work(walk: Path, tmp_path: Path
+                                                               ) -> None:  # fmt: skip
+    from monoavatar.pipelines.stages import PipelineError
+    from monoavatar.pipelines.track import TrackConfig, track
+
+    with pytest.raises(PipelineError, match="landmarks_3d must be one of"):
+        track(walk, tmp_path / "out", TrackConfig(landmarks_3d="mediapipe", progress=False))
+    assert not (tmp_path / "out").exists()
 
 
 def test_a_frame_range_tracks_only_those_frames(walk: Path, tmp_path: Path, capsys) -> None:

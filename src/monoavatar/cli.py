@@ -367,12 +367,13 @@ def _add_track(p: argparse.ArgumentParser) -> None:
     from monoavatar.fit.pose import PoseSettings
     from monoavatar.fit.tracking import TrackSettings
     from monoavatar.pipelines.stages import PERCEPTION, InputSettings
-    from monoavatar.pipelines.track import TrackConfig
+    from monoavatar.pipelines.track import LANDMARK_SOURCES, TrackConfig
 
     p.description = (
         "Track a person's 3D motion through a video with a static camera (dissertation Paper "
-        "A): mediapipe masks, 2D and 3D landmarks and optical flow per frame; the body (an "
-        "avatar's, or a shape fitted on the first frames) posed frame by frame from a Kalman "
+        "A): mediapipe masks and 2D landmarks, 3D landmarks lifted from them by a learned "
+        "lifter, and optical flow per frame; the body (an avatar's, or a shape fitted on the "
+        "first frames) posed frame by frame from a Kalman "
         "prediction to match the observed flow, silhouette and landmarks. Writes motion.npz "
         "(poses, translations, landmarks in the camera and an upright world frame), motion.bvh "
         "(Blender, Maya, Unity), motion.glb (the body animated), preview/overlay.mp4 and "
@@ -406,7 +407,13 @@ def _add_track(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-keypoints", action="store_true",
                    help="without the 2D keypoint term (flow, silhouette and 3D landmarks only)")
     p.add_argument("--no-world", action="store_true",
-                   help="without mediapipe's metric 3D landmarks")  # fmt: skip
+                   help="without the 3D landmark term")  # fmt: skip
+    _option(p, "--landmarks-3d", TrackConfig, "landmarks_3d", "the 3D landmarks: 'lifter' "
+            "(lifted from the 2D landmarks by our learned lifter) or 'detector' (mediapipe's "
+            "world landmarks)", choices=LANDMARK_SOURCES)  # fmt: skip
+    _option(p, "--lifter-weights", TrackConfig, "lifter_weights", "a lifter weights file "
+            "(from 'monoavatar train lifter'; None: the shipped weights)",
+            metavar="FILE")  # fmt: skip
     _option(p, "--flow-weight", TrackSettings, "flow_weight", "weight of the flow term",
             type=float)  # fmt: skip
     p.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -445,6 +452,8 @@ def _run_track(args: argparse.Namespace) -> int:
     config.input = replace(config.input, focal=args.focal, perception=args.perception,
                            perception_settings=perception, first=first, stop=stop)  # fmt: skip
     config.avatar = None if args.avatar is None else str(args.avatar)
+    config.landmarks_3d = args.landmarks_3d
+    config.lifter_weights = None if args.lifter_weights is None else str(args.lifter_weights)
     config.fps = args.fps
     config.progress = not args.quiet
     result = track(args.input, args.output, config)
@@ -633,12 +642,56 @@ def _run_photo(args: argparse.Namespace) -> int:
 
 def _add_train(p: argparse.ArgumentParser) -> None:
     p.description = ("Train a learned part from data made by our own synth: 'photo' (the "
-                     "single-image network of 'monoavatar photo') or 'fast' (the few-frame "
-                     "network of 'monoavatar reconstruct --fast'). Every step resumes from "
-                     "what the output folder already holds.")
-    parts = p.add_subparsers(dest="what", required=True, metavar="{photo,fast}")
+                     "single-image network of 'monoavatar photo'), 'fast' (the few-frame "
+                     "network of 'monoavatar reconstruct --fast') or 'lifter' (the 2D-to-3D "
+                     "landmark lifter of 'monoavatar track'). Every step resumes from what the "
+                     "output folder already holds.")
+    parts = p.add_subparsers(dest="what", required=True, metavar="{photo,fast,lifter}")
     _add_train_photo(parts.add_parser("photo", help="the photo network (Paper E)"))
     _add_train_fast(parts.add_parser("fast", help="the few-frame network (Paper D)"))
+    _add_train_lifter(parts.add_parser("lifter", help="the landmark lifter (Paper A)"))
+
+
+def _add_train_lifter(p: argparse.ArgumentParser) -> None:
+    from monoavatar.learn.lifter_train import LifterTrainConfig
+
+    p.description = (
+        "Make synthetic motion sequences (random bodies in random limb motion, seen by random "
+        "cameras), train the landmark lifter to turn a window of noisy 2D landmarks into the "
+        "centre frame's 3D landmarks, and write OUT/lifter.safetensors (use it with "
+        "'monoavatar track --lifter-weights', or copy it to monoavatar/learn/weights/). Every "
+        "step resumes from what OUT already holds.")
+    p.add_argument("-o", "--output", required=True, type=Path, help="working folder")
+    _option(p, "--sequences", LifterTrainConfig, "sequences", "training sequences", type=int)
+    _option(p, "--val", LifterTrainConfig, "val", "validation sequences", type=int)
+    _option(p, "--steps", LifterTrainConfig, "steps", "optimiser steps", type=int)
+    _option(p, "--batch", LifterTrainConfig, "batch", "windows per step", type=int)
+    _option(p, "--seed", LifterTrainConfig, "seed", "training seed", type=int)
+    _option(p, "--max-minutes", LifterTrainConfig, "max_minutes", "stop training after this "
+            "many minutes (resume by running the command again)", type=float)  # fmt: skip
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(run=_run_train_lifter)
+
+
+def _run_train_lifter(args: argparse.Namespace) -> int:
+    from monoavatar.learn.lifter_train import LifterTrainConfig, train_lifter
+
+    config = LifterTrainConfig(sequences=args.sequences, val=args.val, steps=args.steps,
+                               batch=args.batch, seed=args.seed, max_minutes=args.max_minutes,
+                               progress=not args.quiet)  # fmt: skip
+    result = train_lifter(args.output, config)
+    return _print_training(result.finished, result.steps_done, result.weights,
+                           result.validation, args.output)  # fmt: skip
+
+
+def _print_training(finished: bool, steps: int, weights: Path, validation: dict[str, float],
+                    out: Path) -> int:  # fmt: skip
+    state = "finished" if finished else "stopped (run again to resume)"
+    print(f"training {state} after {steps} steps" + (f"; weights: {weights}" if finished else ""))
+    for key, value in validation.items():
+        print(f"  {key}: {value:.2f}")
+    print(f"  log: {out / 'train' / 'log.jsonl'}; curve: {out / 'curve.png'}")
+    return 0
 
 
 def _add_train_fast(p: argparse.ArgumentParser) -> None:
@@ -678,13 +731,8 @@ def _run_train_fast(args: argparse.Namespace) -> int:
                              network=FastNetworkSettings(decoder=args.decoder),
                              progress=not args.quiet)  # fmt: skip
     result = train_fast(args.output, config)
-    state = "finished" if result.finished else "stopped (run again to resume)"
-    print(f"training {state} after {result.steps_done} steps"
-          + (f"; weights: {result.weights}" if result.finished else ""))
-    for key, value in result.validation.items():
-        print(f"  {key}: {value:.2f}")
-    print(f"  log: {args.output / 'train' / 'log.jsonl'}")
-    return 0
+    return _print_training(result.finished, result.steps_done, result.weights,
+                           result.validation, args.output)  # fmt: skip
 
 
 def _add_train_photo(p: argparse.ArgumentParser) -> None:

@@ -66,6 +66,54 @@ def free_motion(body: BodyModel, frames: int, rng: np.random.Generator, fps: flo
     return pose, transl
 
 
+#: Ranges (joint, axis, low, high) in radians of :func:`limb_motion`'s angles; axes as in the
+#: module's docstring (left arm raised sideways: +Z on shoulder_l; knee flexion +X; elbow −X).
+LIMB_RANGES: tuple[tuple[str, int, float, float], ...] = (
+    ("spine1", 0, -0.2, 0.5), ("spine1", 1, -0.3, 0.3), ("spine1", 2, -0.2, 0.2),
+    ("spine2", 0, -0.1, 0.3), ("spine2", 1, -0.3, 0.3), ("spine3", 1, -0.2, 0.2),
+    ("neck", 0, -0.3, 0.4), ("neck", 1, -0.5, 0.5), ("head", 0, -0.3, 0.3),
+    ("shoulder_l", 0, -1.6, 0.6), ("shoulder_l", 1, -0.6, 0.6), ("shoulder_l", 2, -1.2, 1.0),
+    ("shoulder_r", 0, -1.6, 0.6), ("shoulder_r", 1, -0.6, 0.6), ("shoulder_r", 2, -1.0, 1.2),
+    ("elbow_l", 0, -2.3, 0.0), ("elbow_r", 0, -2.3, 0.0),
+    ("wrist_l", 0, -0.5, 0.5), ("wrist_r", 0, -0.5, 0.5),
+    ("hip_l", 0, -1.4, 0.4), ("hip_l", 2, -0.15, 0.6), ("hip_l", 1, -0.4, 0.4),
+    ("hip_r", 0, -1.4, 0.4), ("hip_r", 2, -0.6, 0.15), ("hip_r", 1, -0.4, 0.4),
+    ("knee_l", 0, 0.0, 2.2), ("knee_r", 0, 0.0, 2.2),
+    ("ankle_l", 0, -0.4, 0.4), ("ankle_r", 0, -0.4, 0.4),
+)  # fmt: skip
+
+
+def limb_motion(body: BodyModel, frames: int, rng: np.random.Generator, fps: float = 30.0
+                ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Unstructured motion for learning: each angle of :data:`LIMB_RANGES` a random centre plus
+    one or two sinusoids of 0.2–2.2 Hz, clipped to its range, left and right independent; the
+    heading about +Y drifts from a random start by up to ±0.8 rad, the body leans a little;
+    the root moves on a slow random path (up to about 1 m) with a small vertical bounce.
+
+    Returns poses (N, J, 3) axis-angle radians and translations (N, 3) metres.
+    """
+    time = np.arange(frames) / fps
+    pose = np.zeros((frames, body.num_joints, 3))
+    for joint, axis, lo, hi in LIMB_RANGES:
+        centre = rng.uniform(lo, hi)
+        angle = np.full(frames, centre)
+        for _ in range(int(rng.integers(1, 3))):
+            amp = rng.uniform(0.0, 0.5) * (hi - lo)
+            angle += amp * np.sin(2 * np.pi * rng.uniform(0.2, 2.2) * time + rng.uniform(0, 7))
+        _set(pose, body, joint, axis, np.clip(angle, lo, hi))
+    heading = rng.uniform(-np.pi, np.pi) + rng.uniform(-0.8, 0.8) * np.sin(
+        2 * np.pi * rng.uniform(0.02, 0.2) * time + rng.uniform(0, 7))
+    lean = rng.uniform(-0.15, 0.15, 2)
+    root = Rotation.from_rotvec(np.stack([np.zeros(frames), heading, np.zeros(frames)], -1))
+    pose[:, 0] = (root * Rotation.from_rotvec([lean[0], 0.0, lean[1]])).as_rotvec()
+    transl = np.zeros((frames, 3))
+    for axis in (0, 2):
+        transl[:, axis] = rng.uniform(-0.5, 0.5) * np.sin(
+            2 * np.pi * rng.uniform(0.02, 0.15) * time + rng.uniform(0, 7))
+    transl[:, 1] = rng.uniform(0.0, 0.04) * np.abs(np.sin(2 * np.pi * rng.uniform(0.5, 2) * time))
+    return pose, transl
+
+
 def standing_pose(body: BodyModel, rng: np.random.Generator) -> np.ndarray:
     """A varied standing pose roughly facing the camera (±35°), for single photos. (J, 3)."""
     pose = 0.06 * rng.standard_normal((body.num_joints, 3))

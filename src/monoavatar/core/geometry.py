@@ -1,5 +1,6 @@
-"""Mesh geometry shared by every layer above: argument checks for vertex and face arrays,
-area-weighted vertex normals and the cotangent Laplacian."""
+"""Geometry shared by every layer above: argument checks for vertex and face arrays,
+area-weighted vertex normals, the cotangent Laplacian, and the rotation taking the optical axis
+onto a viewing ray."""
 
 from __future__ import annotations
 
@@ -8,7 +9,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-__all__ = ["cotangent_laplacian", "face_indices", "float_tensor", "vertex_normals", "writable"]
+__all__ = ["cotangent_laplacian", "face_indices", "float_tensor", "ray_rotations", "vertex_normals",
+           "writable"]  # fmt: skip
 
 
 def writable(x: object) -> object:
@@ -93,3 +95,22 @@ def cotangent_laplacian(vertices: np.ndarray, faces: np.ndarray) -> object:
     W = sp.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                       shape=(n, n)).tocsr()  # fmt: skip
     return sp.diags(np.asarray(W.sum(axis=1)).ravel()) - W
+
+
+def ray_rotations(directions: Tensor) -> Tensor:
+    """(..., 3, 3) the smallest rotations taking the camera's axis (0, 0, 1) to ``directions``
+    (..., 3) (any length; Rodrigues' formula about their cross product with the axis, the
+    identity where they are parallel to it). A direction pointing backwards (−z) turns
+    about the camera's x axis."""
+    d = directions / directions.norm(dim=-1, keepdim=True)
+    x, y, c = d[..., 0], d[..., 1], d[..., 2]
+    # K = [z]× for the unit axis k = z × d / |z × d|: R = I + sin K + (1 − cos) K², and with
+    # z × d = (−y, x, 0) the terms combine into the closed form below (no division by sin).
+    h = torch.where(c > -1 + 1e-9, 1.0 / (1.0 + c).clamp_min(1e-9), torch.zeros_like(c))
+    r = torch.stack([
+        torch.stack([1 - h * x * x, -h * x * y, x], dim=-1),
+        torch.stack([-h * x * y, 1 - h * y * y, y], dim=-1),
+        torch.stack([-x, -y, c], dim=-1),
+    ], dim=-2)  # fmt: skip
+    flip = torch.diag(torch.tensor([1.0, -1.0, -1.0], dtype=d.dtype, device=d.device))
+    return torch.where((c <= -1 + 1e-9)[..., None, None], flip, r)

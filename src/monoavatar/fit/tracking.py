@@ -44,6 +44,7 @@ from tqdm import tqdm
 from monoavatar.body import BodyModel, lbs
 from monoavatar.core.camera import PinholeCamera
 from monoavatar.core.errors import MonoavatarError
+from monoavatar.core.geometry import ray_rotations
 from monoavatar.core.threads import torch_threads
 from monoavatar.fit import energies
 from monoavatar.fit import pose_energy as pe
@@ -431,18 +432,8 @@ def closeness_energy(root: Tensor, body: Tensor, translation: Tensor,
 
 def ray_rotation(direction: Tensor) -> Tensor:
     """(3, 3) the smallest rotation taking the camera's axis (0, 0, 1) to the unit ``direction``
-    (3,) (Rodrigues' formula about their cross product)."""
-    z = direction.new_tensor([0.0, 0.0, 1.0])
-    d = direction / direction.norm()
-    axis = torch.linalg.cross(z, d)
-    s, c = axis.norm(), (z * d).sum()
-    if s < 1e-12:
-        return torch.eye(3, dtype=direction.dtype)
-    k = axis / s
-    skew = torch.stack([torch.stack([k.new_zeros(()), -k[2], k[1]]),
-                        torch.stack([k[2], k.new_zeros(()), -k[0]]),
-                        torch.stack([-k[1], k[0], k.new_zeros(())])])  # fmt: skip
-    return torch.eye(3, dtype=direction.dtype) + s * skew + (1 - c) * skew @ skew
+    (3,) (:func:`monoavatar.core.geometry.ray_rotations`)."""
+    return ray_rotations(direction)
 
 
 #: Pairs of mediapipe landmarks whose distance :func:`rescale_landmarks` compares: upper and
@@ -489,7 +480,7 @@ def world_landmark_energy(keypoints: Tensor, camera: PinholeCamera, observed: Te
     cam = keypoints @ R.T + t
     hips = 0.5 * (cam[:, _LEFT_HIP] + cam[:, _RIGHT_HIP])
     rel = cam - hips[:, None]
-    turn = torch.stack([ray_rotation(h) for h in hips.detach()])  # (B, 3, 3)
+    turn = ray_rotations(hips.detach())  # (B, 3, 3)
     obs = torch.nan_to_num(observed[..., :3]) @ turn.transpose(-1, -2)
     conf = torch.nan_to_num(observed[..., 3]) * valid.to(keypoints.dtype)
     r2 = ((rel - obs) * 100.0).pow(2).sum(-1)

@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import json
 import math
-import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -38,7 +37,6 @@ from torch import Tensor
 
 from monoavatar.body import BodyModel, lbs
 from monoavatar.core.errors import MonoavatarError
-from monoavatar.core.files import atomic_write_text
 from monoavatar.learn.fast_data import SHARD, FastDataset, FastDataSettings, generate_fast_data
 from monoavatar.learn.fast_model import (
     FastNetwork,
@@ -51,8 +49,6 @@ from monoavatar.learn.shards import shard_paths
 
 __all__ = ["FastTrainConfig", "FastTrainResult", "fast_losses", "train_fast", "validate_fast"]
 
-CHECKPOINT = "checkpoint.safetensors"
-LOG = "log.jsonl"
 POSED_EVERY = 7
 """The posed-vertex loss is taken on every 7th vertex (about 2000 of Anny's 13718)."""
 _TRAJECTORY = ("batch", "lr", "seed", "max_views", "steps", "keypoint_noise", "weights")
@@ -240,16 +236,6 @@ def validate_fast(body: BodyModel, net: FastNetwork, data: FastDataset, views: i
 # -- the loop -----------------------------------------------------------------------------------
 
 
-def _save_checkpoint(path: Path, net: FastNetwork, opt: torch.optim.Optimizer, step: int,
-                     seconds: float, config: FastTrainConfig) -> None:  # fmt: skip
-    from monoavatar.learn.weights import module_tensors, optimizer_tensors, save_weights
-
-    opt_tensors, opt_meta = optimizer_tensors(opt, "adam.")
-    meta = {"content": "checkpoint", "step": str(step), "seconds": repr(seconds),
-            "trajectory": json.dumps(config.trajectory())} | net.settings.metadata() | opt_meta
-    save_weights(path, module_tensors(net, "network.") | opt_tensors, meta)
-
-
 def export_fast(path: Path, net: FastNetwork, config: FastTrainConfig, step: int,
                 validation: dict[str, float]) -> None:  # fmt: skip
     """The network's weights alone (what ``reconstruct --fast`` loads)."""
@@ -262,11 +248,9 @@ def export_fast(path: Path, net: FastNetwork, config: FastTrainConfig, step: int
 
 def train_fast(folder: str | Path, config: FastTrainConfig | None = None) -> FastTrainResult:
     """Make the data, train (resuming from a checkpoint), export ``fast.safetensors``."""
-    from tqdm import tqdm
-
     from monoavatar.body import load_body_model
+    from monoavatar.learn.loop import LOG, LoopError, LoopSettings, plot_log, train_steps
     from monoavatar.learn.training import resolve_device
-    from monoavatar.learn.weights import load_module_tensors, load_optimizer_tensors, load_weights
 
     config = config or FastTrainConfig()
     config.validate()
@@ -282,75 +266,26 @@ def train_fast(folder: str | Path, config: FastTrainConfig | None = None) -> Fas
                       vertex_uv_samples(body.faces, body.face_uv))  # fmt: skip
     _pca_decoder(net, train_data)
     net.to(device)
-    opt = torch.optim.Adam(net.parameters(), lr=config.lr)
-    sched = torch.optim.lr_scheduler.LambdaLR(
-        opt, lambda s: 0.5 * (1 + math.cos(math.pi * min(s, config.steps) / config.steps)))
-    ckpt, log = out / "train" / CHECKPOINT, out / "train" / LOG
-    step, seconds = 0, 0.0
-    if ckpt.is_file():
-        tensors, meta = load_weights(ckpt)
-        if json.loads(meta["trajectory"]) != json.loads(json.dumps(config.trajectory())):
-            raise FastTrainError(f"{ckpt} was made with other training settings; use another "
-                                 "folder or delete it")  # fmt: skip
-        load_module_tensors(net, tensors, prefix="network.")
-        load_optimizer_tensors(opt, tensors, meta, prefix="adam.")
-        step, seconds = int(meta["step"]), float(meta["seconds"])
-        sched.last_epoch = step
-        for group, lr in zip(opt.param_groups, sched.get_lr(), strict=True):
-            group["lr"] = lr
-    lines = [ln for ln in (log.read_text().splitlines() if log.is_file() else [])
-             if json.loads(ln)["step"] <= step]  # fmt: skip
-    deadline = None if config.max_minutes is None else time.monotonic() + 60 * config.max_minutes
-    validation: dict[str, float] = {}
-    bar = tqdm(total=config.steps, initial=step, desc="train fast", unit="step",
-               disable=not config.progress)  # fmt: skip
-    running: dict[str, float] = {}
-    while step < config.steps:
-        start = time.perf_counter()
+
+    def step_loss(step: int) -> dict[str, Tensor]:
         batch = {k: v.to(device) for k, v in step_batch(train_data, step, config).items()}
-        terms = fast_losses(body, net(batch["masks"], batch["keypoints"]), batch, config.weights)
-        opt.zero_grad(set_to_none=True)
-        terms["loss"].backward()
-        opt.step()
-        sched.step()
-        step += 1
-        seconds += time.perf_counter() - start
-        for k, v in terms.items():
-            running[k] = running.get(k, 0.0) + float(v.detach())
-        bar.update(1)
-        bar.set_postfix(loss=f"{float(terms['loss'].detach()):.3f}")
-        stop = deadline is not None and time.monotonic() > deadline
-        if step % config.validate_every == 0 or step == config.steps or stop:
-            validation = validate_fast(body, net, val_data, 8) | validate_fast(body, net,
-                                                                              val_data, 1)
-            count = max(1, step % config.validate_every or config.validate_every)
-            entry = {"step": step, "seconds": seconds} | {f"train_{k}": v / count
-                                                           for k, v in running.items()}
-            lines.append(json.dumps(entry | validation))
-            atomic_write_text(log, "\n".join(lines) + "\n")
-            running = {}
-        if step % config.checkpoint_every == 0 or step == config.steps or stop:
-            _save_checkpoint(ckpt, net, opt, step, seconds, config)
-        if stop:
-            break
-    bar.close()
+        return fast_losses(body, net(batch["masks"], batch["keypoints"]), batch, config.weights)
+
+    def validate() -> dict[str, float]:
+        return validate_fast(body, net, val_data, 8) | validate_fast(body, net, val_data, 1)
+
+    settings = LoopSettings(config.steps, config.lr, config.checkpoint_every,
+                            config.validate_every, config.max_minutes, config.progress,
+                            "train fast")  # fmt: skip
+    try:
+        result = train_steps(out / "train", net, step_loss, validate, config.trajectory(),
+                             settings, net.settings.metadata())  # fmt: skip
+    except LoopError as e:
+        raise FastTrainError(str(e)) from None
     weights = out / "fast.safetensors"
-    finished = step >= config.steps
-    if finished:
-        if not validation:
-            validation = validate_fast(body, net, val_data, 8) | validate_fast(body, net,
-                                                                              val_data, 1)
-        export_fast(weights, net, config, step, validation)
-        _curve(log, out / "curve.png")
-    return FastTrainResult(weights, step, finished, validation)
-
-
-def _curve(log: Path, path: Path) -> None:
-    """Validation vertex error (8 frames and 1) against training minutes."""
-    from monoavatar.io.plots import line_plot
-
-    rows = [json.loads(line) for line in log.read_text().splitlines()]
-    minutes = [r["seconds"] / 60 for r in rows]
-    line_plot(path, {"8 frames": (minutes, [r["val8_vertices_mm"] for r in rows]),
-                     "1 frame": (minutes, [r["val1_vertices_mm"] for r in rows])},
-              "training time (minutes)", "canonical vertex error, mm", "few-frame network")
+    if result.finished:
+        export_fast(weights, net, config, result.steps_done, result.validation)
+        plot_log(out / "train" / LOG, out / "curve.png",
+                 {"8 frames": "val8_vertices_mm", "1 frame": "val1_vertices_mm"},
+                 "canonical vertex error, mm", "few-frame network")  # fmt: skip
+    return FastTrainResult(weights, result.steps_done, result.finished, result.validation)

@@ -3,10 +3,12 @@ renderer (:mod:`monoavatar.fit.tracking`).
 
 Stages (each timed in ``report.json``)::
 
-    inputs ─ perception (masks, keypoints, 3D landmarks, flow) ─ track ─ export
+    inputs ─ perception (masks, 2D landmarks, flow) ─ lift (3D landmarks) ─ track ─ export
 
-The body is the avatar of a ``reconstruct`` folder (``avatar``), else a shape fitted on the
-first frames. Outputs (:data:`MOTION_FILES`) are assembled in a staging folder and moved into
+The 3D landmarks of the tracker's depth term are lifted from the 2D ones by our learned lifter
+(:mod:`monoavatar.learn.lifter`) or are the detector's own (``landmarks_3d``). The body is
+the avatar of a ``reconstruct`` folder (``avatar``), else a shape fitted on the first frames.
+Outputs (:data:`MOTION_FILES`) are assembled in a staging folder and moved into
 place only when everything has been written, so a failure leaves no partial output.
 Perception is cached as in ``reconstruct``: a second run on the same clip starts at tracking.
 """
@@ -34,6 +36,7 @@ from monoavatar.io.bvh import write_bvh
 from monoavatar.io.export_mesh import write_mp4
 from monoavatar.io.gltf import PoseAnimation, skinned_mesh_from_body, write_animated_glb
 from monoavatar.io.viewer_page import keyframe_atlas
+from monoavatar.learn.lifter import lift_landmarks, load_lifter
 from monoavatar.perception.observations import Observations
 from monoavatar.perception.pipeline import PerceptionSettings
 from monoavatar.pipelines.stages import (
@@ -46,8 +49,8 @@ from monoavatar.pipelines.stages import (
 )
 from monoavatar.render import rasterize, render_normals
 
-__all__ = ["EVAL_JOINTS", "MOTION_FILES", "TrackConfig", "TrackQualityWarning", "TrackResult",
-           "quality_warnings", "track"]  # fmt: skip
+__all__ = ["EVAL_JOINTS", "LANDMARK_SOURCES", "MOTION_FILES", "TrackConfig", "TrackQualityWarning",
+           "TrackResult", "lifted", "quality_warnings", "track"]  # fmt: skip
 
 MOTION_FILES = ("motion.npz", "motion.bvh", "motion.glb", "preview/overlay.mp4", "report.json",
                 "keyframes.jpg")  # fmt: skip
@@ -55,6 +58,8 @@ MOTION_FILES = ("motion.npz", "motion.bvh", "motion.glb", "preview/overlay.mp4",
 EVAL_JOINTS = ("head", "neck", "shoulder_l", "shoulder_r", "elbow_l", "elbow_r", "wrist_l",
                "wrist_r", "hip_l", "hip_r", "knee_l", "knee_r", "ankle_l", "ankle_r")  # fmt: skip
 MAX_FRAMES = 100_000
+#: Values of ``TrackConfig.landmarks_3d``.
+LANDMARK_SOURCES = ("lifter", "detector")
 
 
 def _track_input() -> InputSettings:
@@ -70,6 +75,10 @@ class TrackConfig:
         input: what to read and how to perceive it (every frame, with flow, no face mesh).
         avatar: a ``reconstruct`` folder whose avatar is tracked (None: a shape is fitted on
             the first frames).
+        landmarks_3d: where the 3D landmarks come from: ``"lifter"`` (lifted from the 2D
+            landmarks by :func:`~monoavatar.learn.lifter.lift_landmarks`) or ``"detector"``
+            (mediapipe's world landmarks).
+        lifter_weights: a lifter weights file (None: the shipped one).
         body_model: the body model when no avatar is given.
         track: the tracker's options (``track.pose.height``: the person's height, metres).
         fps: frame rate of the outputs (None: the input's, else 30).
@@ -78,6 +87,8 @@ class TrackConfig:
 
     input: InputSettings = field(default_factory=_track_input)
     avatar: str | None = None
+    landmarks_3d: str = "lifter"
+    lifter_weights: str | None = None
     body_model: str = "anny"
     track: TrackSettings = field(default_factory=TrackSettings)
     fps: float | None = None
@@ -126,12 +137,16 @@ def track(input_path: str | Path, out_dir: str | Path, config: TrackConfig | Non
     """Track the person of a video (or image folder, or synth scene) into ``out_dir``.
 
     Raises:
-        PipelineError: the output folder is not new or empty; TrackError: fewer than two
+        PipelineError: the output folder is not new or empty, or an unknown
+        ``landmarks_3d``; LifterError: no lifter weights; TrackError: fewer than two
         frames; NoPersonError: no person; InputError subclasses: unreadable input or avatar.
     """
     config = config or TrackConfig()
     out_dir = Path(out_dir)
     _check_output(out_dir)
+    if config.landmarks_3d not in LANDMARK_SOURCES:
+        raise PipelineError(f"landmarks_3d must be one of {LANDMARK_SOURCES}, got "
+                            f"{config.landmarks_3d!r}")  # fmt: skip
     start = time.perf_counter()
     timer = StageTimer()
     with kept_warnings() as caught:  # kept for the report, shown however the run ends
@@ -146,6 +161,9 @@ def track(input_path: str | Path, out_dir: str | Path, config: TrackConfig | Non
                 method = config.input.perception_settings.flow or "dis"
                 flow = flow_sequence(inputs.frames.images, make_flow_estimator(method))
             obs = replace(obs, flow=flow)
+        if config.track.world and config.landmarks_3d == "lifter":
+            with timer("lift"):
+                obs = lifted(obs, config)
         with timer("track"):
             shape = avatar.params.shape if avatar is not None else None
             offsets = avatar.params.offsets if avatar is not None else None
@@ -158,6 +176,20 @@ def track(input_path: str | Path, out_dir: str | Path, config: TrackConfig | Non
             files, report = _export(body, inputs, motion, avatar, out_dir, fps, config, timer,
                                     start, caught)  # fmt: skip
     return TrackResult(out_dir, motion, files, report)
+
+
+#: The height the lifter's landmarks are scaled to when none is known (the tracker rescales
+#: them to the body's bones anyway, ``TrackSettings.world_rescale``).
+NOMINAL_HEIGHT_M = 1.7
+
+
+def lifted(obs: Observations, config: TrackConfig) -> Observations:
+    """``obs`` with its 3D landmarks lifted from its 2D ones (frames whose 2D landmarks are
+    incomplete keep none)."""
+    net = load_lifter(config.lifter_weights)
+    height = config.track.pose.height or NOMINAL_HEIGHT_M
+    world = lift_landmarks(net, obs.keypoints, np.asarray(obs.camera.K), ~obs.no_person, height)
+    return replace(obs, world_keypoints=world if np.isfinite(world).any() else None)
 
 
 class TrackQualityWarning(UserWarning):
@@ -258,6 +290,7 @@ def _export(body: BodyModel, inputs: Inputs, motion: MotionTrack, avatar: Avatar
         "frames_without_person": int(inputs.observations.no_person.sum()),
         "energy_median": float(np.nanmedian(motion.energy)),
         "settings": asdict(config.track),
+        "landmarks_3d": config.landmarks_3d if config.track.world else None,
         "warnings": sorted({str(w.message) for w in caught}),
     }
     truth = _ground_truth_joints(inputs)
