@@ -99,8 +99,11 @@ def train_steps(folder: str | Path, net: nn.Module,
     trajectory = json.loads(json.dumps(trajectory))
     opt = torch.optim.Adam(net.parameters(), lr=settings.lr)
     steps = settings.steps
-    sched = torch.optim.lr_scheduler.LambdaLR(
-        opt, lambda s: 0.5 * (1 + math.cos(math.pi * min(s, steps) / steps)))
+
+    def decay(s: int) -> float:
+        return 0.5 * (1 + math.cos(math.pi * min(s, steps) / steps))
+
+    sched = torch.optim.lr_scheduler.LambdaLR(opt, decay)
     ckpt, log = folder / CHECKPOINT, folder / LOG
     step, seconds = 0, 0.0
     if ckpt.is_file():
@@ -112,8 +115,8 @@ def train_steps(folder: str | Path, net: nn.Module,
         load_optimizer_tensors(opt, tensors, meta, prefix="adam.")
         step, seconds = int(meta["step"]), float(meta["seconds"])
         sched.last_epoch = step
-        for group, lr in zip(opt.param_groups, sched.get_lr(), strict=True):
-            group["lr"] = lr
+        for group in opt.param_groups:
+            group["lr"] = group["initial_lr"] * decay(step)
     lines = [ln for ln in (log.read_text().splitlines() if log.is_file() else [])
              if json.loads(ln)["step"] <= step]  # fmt: skip
 
