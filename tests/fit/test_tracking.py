@@ -13,6 +13,7 @@ import torch
 
 from monoavatar.body.model import BodyModel
 from monoavatar.core.camera import PinholeCamera
+from monoavatar.core.geometry import ray_rotations
 from monoavatar.fit import pose_energy as pe
 from monoavatar.fit.prior import apose_prior
 from monoavatar.fit.tracking import (
@@ -22,7 +23,6 @@ from monoavatar.fit.tracking import (
     _flow_energy,
     closeness_energy,
     flow_targets,
-    ray_rotation,
     rescale_landmarks,
     track_motion,
     world_landmark_energy,
@@ -117,7 +117,7 @@ def test_world_landmark_term_vanishes_at_the_models_own_landmarks() -> None:
     hips = 0.5 * (cam[:, 23] + cam[:, 24])
     rel = cam - hips[:, None]
     # the detector reports them in axes along its line of sight to the hips
-    turn = ray_rotation(hips[0])
+    turn = ray_rotations(hips[0])
     observed = torch.cat([rel @ turn, torch.ones(1, 33, 1, dtype=torch.float64)], -1)
     valid = torch.ones(33, dtype=torch.bool)
     assert world_landmark_energy(kp, camera, observed, valid, 10.0).item() < 1e-12
@@ -156,7 +156,7 @@ def test_landmarks_are_rescaled_to_the_bodys_bone_lengths() -> None:
 def test_ray_rotation_takes_the_optical_axis_to_the_ray() -> None:
     for direction in ([0.3, -0.2, 1.0], [0.0, 0.0, 1.0], [-1.0, 0.5, 0.2]):
         d = torch.tensor(direction, dtype=torch.float64)
-        R = ray_rotation(d)
+        R = ray_rotations(d)
         np.testing.assert_allclose((R @ torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)).numpy(),
                                    (d / d.norm()).numpy(), atol=1e-12)  # fmt: skip
         np.testing.assert_allclose((R.T @ R).numpy(), np.eye(3), atol=1e-12)

@@ -56,7 +56,7 @@ from monoavatar.perception.observations import Observations
 from monoavatar.render.raster import rasterize
 
 __all__ = ["LANDMARK_BONES", "FlowTargets", "MotionTrack", "TrackError", "TrackSettings",
-           "closeness_energy", "flow_targets", "ray_rotation", "rescale_landmarks",
+           "closeness_energy", "flow_targets", "rescale_landmarks",
            "smooth_landmarks", "track_motion", "world_landmark_energy"]  # fmt: skip
 
 
@@ -430,12 +430,6 @@ def closeness_energy(root: Tensor, body: Tensor, translation: Tensor,
             + (((translation - previous[2][-1:]) / translation_scale) ** 2).sum(-1))  # fmt: skip
 
 
-def ray_rotation(direction: Tensor) -> Tensor:
-    """(3, 3) the smallest rotation taking the camera's axis (0, 0, 1) to the unit ``direction``
-    (3,) (:func:`monoavatar.core.geometry.ray_rotations`)."""
-    return ray_rotations(direction)
-
-
 #: Pairs of mediapipe landmarks whose distance :func:`rescale_landmarks` compares: upper and
 #: lower arms and legs, feet, hips, shoulders and the two sides of the torso.
 LANDMARK_BONES = ((11, 13), (13, 15), (12, 14), (14, 16), (23, 25), (25, 27), (24, 26), (26, 28),
@@ -470,7 +464,8 @@ def world_landmark_energy(keypoints: Tensor, camera: PinholeCamera, observed: Te
     The detector sees a crop around the person and gives its landmarks in axes aligned with
     that crop's line of sight (weak perspective); they are turned onto the camera's axes by
     the rotation taking the optical axis to the ray through the model's hips
-    (:func:`ray_rotation`), so a person off the image centre is not turned.
+    (:func:`~monoavatar.core.geometry.ray_rotations`), so a person off the image centre is not
+    turned.
 
     keypoints (B, 33, 3) world metres; observed (B, 33, 4) (x, y, z metres, confidence);
     valid (33,) bool, the landmarks the body model defines. Returns (B,).

@@ -47,8 +47,8 @@ from monoavatar.learn.lifter import (
     normalise_windows,
 )
 
-__all__ = ["LifterTrainConfig", "LifterTrainResult", "generate_lifter_data", "lifter_batch",
-           "sequence_landmarks", "train_lifter"]  # fmt: skip
+__all__ = ["LifterTrainConfig", "LifterTrainError", "LifterTrainResult", "generate_lifter_data",
+           "lifter_batch", "sequence_landmarks", "train_lifter"]  # fmt: skip
 
 #: The 12 limb landmarks of the validation figure: shoulders, elbows, wrists, hips, knees,
 #: ankles.
