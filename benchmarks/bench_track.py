@@ -97,8 +97,22 @@ def _joints_camera(body, shape, poses, trans, camera) -> np.ndarray:  # type: ig
     return out.joints.double().numpy() @ np.asarray(camera.R).T + np.asarray(camera.t)
 
 
+def _overrides(pairs: list[str]) -> dict[str, object]:
+    """``NAME=VALUE`` strings → TrackSettings fields, each VALUE parsed as its field's type."""
+    defaults = TrackSettings()
+    out: dict[str, object] = {}
+    for pair in pairs:
+        name, _, value = pair.partition("=")
+        if not hasattr(defaults, name) or name == "pose":
+            raise SystemExit(f"--set: TrackSettings has no field {name!r}")
+        kind = type(getattr(defaults, name))
+        out[name] = (value.lower() in ("1", "true", "yes")) if kind is bool else kind(value)
+    return out
+
+
 def run(scene: Path, variants: tuple[str, ...], lifter: Path | None = None,
-        world_weight: float | None = None) -> list[dict]:  # fmt: skip
+        world_weight: float | None = None,
+        overrides: dict[str, object] | None = None) -> list[dict]:  # fmt: skip
     t0 = time.perf_counter()
     settings = InputSettings(frames=100_000, perception="mediapipe",
                              perception_settings=PerceptionSettings(flow="dis", face=False))
@@ -127,7 +141,7 @@ def run(scene: Path, variants: tuple[str, ...], lifter: Path | None = None,
                 obs_v = obs
             if obs_v.world_keypoints is not None:
                 extra = landmark_errors(obs_v.world_keypoints, truth_rel)
-            ts = TrackSettings(pose=pose)
+            ts = replace(TrackSettings(pose=pose), **(overrides or {}))
             if world_weight is not None:
                 ts = replace(ts, world_weight=world_weight)
             motion = track_motion(body, obs_v, ts)
@@ -166,9 +180,13 @@ def main() -> None:
     parser.add_argument("--world-weight", type=float, default=None,
                         help="weight of the 3D landmark term of the default and lifter "
                         "variants (default: TrackSettings')")  # fmt: skip
+    parser.add_argument("--set", nargs="+", default=[], metavar="NAME=VALUE",
+                        help="TrackSettings fields for the default and lifter variants, "
+                        "e.g. --set hips_weight=0.1 hips=false")  # fmt: skip
     args = parser.parse_args()
     rows = [r for scene in args.scenes
-            for r in run(scene, tuple(args.variants), args.lifter, args.world_weight)]
+            for r in run(scene, tuple(args.variants), args.lifter, args.world_weight,
+                         _overrides(args.set))]
     print("| scene | variant | local mm | global mm | accel mm/frame² | s/frame |")
     print("|---|---|---|---|---|---|")
     for r in rows:

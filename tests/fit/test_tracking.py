@@ -247,3 +247,107 @@ def test_smoothing_the_landmarks_keeps_lines_and_skips_missing_frames() -> None:
     assert 0.7 * expected < smoothed.std() < 1.3 * expected
     # σ = 0 leaves them as they are
     np.testing.assert_array_equal(smooth_landmarks(world, 0.0), world)
+
+
+def _hip_ray_view(camera: PinholeCamera, cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Camera-frame landmarks (N, 33, 3) → their pixels with confidence 1 (N, 33, 3) and their
+    positions about the hips in the hip-ray frame with confidence 1 (N, 33, 4)."""
+    from monoavatar.learn.lifter import hip_ray_targets
+
+    px = cam @ np.asarray(camera.K).T
+    pixels = np.concatenate([px[..., :2] / px[..., 2:], np.ones((*cam.shape[:2], 1))], -1)
+    rel = hip_ray_targets(torch.as_tensor(cam)).numpy()
+    return pixels, np.concatenate([rel, np.ones((*cam.shape[:2], 1))], -1)
+
+
+def test_hip_positions_put_exact_landmarks_back_where_they_were() -> None:
+    """Exact pixels and exact hip-relative landmarks in the hip-ray frame give back the hips'
+    midpoint (a closed-form round trip), wherever the person stands; a frame with the hips
+    unseen, or with too few landmarks, gives none."""
+    from monoavatar.fit.tracking import hip_positions
+
+    camera = _camera()
+    rng = np.random.default_rng(5)
+    cam = rng.normal(0.0, 0.3, (6, 33, 3))
+    cam += np.array([[[-0.8, 0.2, 2.5]], [[0.0, 0.0, 4.0]], [[0.6, -0.3, 6.0]],
+                     [[0.1, 0.1, 3.0]], [[0.0, 0.0, 3.5]], [[0.2, 0.0, 5.0]]])  # fmt: skip
+    pixels, rel = _hip_ray_view(camera, cam)
+    pixels[3, 23, 2] = 0.0  # the left hip unseen
+    pixels[4, [11, 12, 13, 14, 15, 16, 25, 26, 27, 28], 2] = 0.0  # only the hips
+    hips = hip_positions(pixels, rel, np.asarray(camera.K))
+    truth = 0.5 * (cam[:, 23] + cam[:, 24])
+    np.testing.assert_allclose(hips[[0, 1, 2, 5]], truth[[0, 1, 2, 5]], atol=1e-9)
+    assert np.isnan(hips[[3, 4]]).all()
+    # landmarks of a body twice as large put it twice as far (depth from apparent size)
+    doubled = rel.copy()
+    doubled[..., :3] *= 2.0
+    far = hip_positions(pixels, doubled, np.asarray(camera.K))
+    assert abs(np.linalg.norm(far[1]) / np.linalg.norm(truth[1]) - 2.0) < 0.05
+
+
+def test_smoothing_a_track_drops_outliers_and_keeps_lines() -> None:
+    from monoavatar.fit.tracking import smooth_track
+
+    n = 60
+    line = np.stack([np.zeros(n), np.zeros(n), 3.0 + 0.01 * np.arange(n)], -1)
+    spoiled = line.copy()
+    spoiled[[10, 30]] = [0.0, 0.0, 9.0]  # two wild frames
+    spoiled[40] = np.nan  # a frame without an estimate
+    # median over 15 frames then a Gaussian of σ 4 (± 12 frames): a line stays a line inside
+    interior = slice(20, n - 20)
+    np.testing.assert_allclose(smooth_track(line, 15, 4.0)[interior], line[interior], atol=1e-5)
+    # a wild frame or a missing one moves a median by at most one step (1 cm here), where a
+    # mean over the same frames would move by tens of centimetres
+    out = smooth_track(spoiled, 15, 4.0)
+    assert np.isfinite(out).all() and np.abs(out - line)[interior].max() < 0.011
+    # the median alone (σ = 0), and a frame whose whole window is empty stays empty
+    empty = np.full((5, 3), np.nan)
+    empty[0] = 1.0
+    assert np.isnan(smooth_track(empty, 3, 0.0)[2:]).all()
+    assert np.abs(smooth_track(spoiled, 15, 0.0) - line)[interior].max() < 0.011
+
+
+def test_hip_term_measures_depth_along_the_ray_only() -> None:
+    """Zero at the model's own hips and for a position at the same distance from the camera;
+    the robust penalty of the depth difference (Geman-McClure) when moved along the ray."""
+    from monoavatar.fit import energies
+    from monoavatar.fit.tracking import hip_energy
+
+    camera = _camera()
+    gen = torch.Generator().manual_seed(4)
+    kp = torch.randn(1, 33, 3, generator=gen, dtype=torch.float64) * 0.3
+    cam = kp @ torch.as_tensor(camera.R).T + torch.as_tensor(camera.t)
+    mid = 0.5 * (cam[:, 23] + cam[:, 24])
+    assert hip_energy(kp, camera, mid, 20.0).item() < 1e-20
+    turned = mid @ torch.as_tensor(ray_rotations(torch.tensor([0.1, 0.0, 1.0],
+                                                              dtype=torch.float64))).T
+    assert hip_energy(kp, camera, turned, 20.0).item() < 1e-18
+    further = mid * (1 + 0.3 / mid.norm())  # 30 cm further along the ray
+    expected = energies.geman_mcclure(torch.tensor(30.0**2, dtype=torch.float64), 20.0)
+    assert hip_energy(kp, camera, further, 20.0).item() == pytest.approx(expected.item())
+
+
+def test_a_bad_detection_does_not_teleport_the_body(anny32: BodyModel) -> None:
+    """One frame's keypoints and mask are those of the body a metre further along its viewing
+    ray (a detection the keypoints alone explain perfectly at the wrong depth): its re-fit is
+    refused, the body stays where the motion predicts, and the frames after it do not drift."""
+    poses, trans = _walk(anny32, 10)
+    obs, joints, _, _ = _render(anny32, poses, trans)
+    bad = 6
+    centre = -_camera().R.T @ _camera().t  # the camera's centre, world frame
+    ray = joints[bad, 0] - centre
+    far = trans[bad : bad + 2] + ray / np.linalg.norm(ray)
+    seen, _, _, _ = _render(anny32, poses[bad : bad + 2], far)
+    keypoints, masks = obs.keypoints.copy(), obs.masks.copy()
+    keypoints[bad], masks[bad] = seen.keypoints[0], seen.masks[0]
+    obs = replace(obs, keypoints=keypoints, masks=masks)
+    pose = pe.PoseSettings(height=None, silhouette_points=300, boundary_points=100,
+                           init_iterations=60)  # fmt: skip
+    track = track_motion(anny32, obs, TrackSettings(pose=pose), shape=anny32.default_shape(1)[0])
+    assert track.reinitialised[bad]
+    with torch.no_grad():
+        out = anny32(pose=torch.as_tensor(track.poses, dtype=anny32.dtype),
+                     translation=torch.as_tensor(track.translations, dtype=anny32.dtype))
+    error = np.linalg.norm(out.joints.double().numpy() - joints, axis=-1).mean(axis=1)
+    # the re-fit alone puts the body a metre away, and the next frames follow it part-way
+    assert error[bad] < 0.15 and error[bad + 1 :].max() < 0.10, error

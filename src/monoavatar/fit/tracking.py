@@ -22,12 +22,22 @@ the translation; :mod:`monoavatar.fit.kalman`) and fitted alone by L-BFGS to (Eq
   they tell a limb reaching towards the camera from one reaching away, which the 2D terms
   cannot. The detector assumes a person of average size; its landmarks are first scaled to
   the body's bone lengths (:func:`rescale_landmarks`);
+* E_h, the hips' depth: where the 2D keypoints and the 3D landmarks together put the hips in
+  the camera frame (:func:`hip_positions`, a linear least-squares solve per frame, then a
+  running median and a Gaussian over frames, :func:`smooth_track`), against the model's hips'
+  distance from the camera (:func:`hip_energy`). E_3d is relative to the hips and the 2D terms
+  see depth only through the body's apparent size, so without it the track's depth is free to
+  wander;
 * E_k, mediapipe's 2D keypoints (robust, confidence-weighted) — the dissertation initialised by
   hand; here the keypoints start the track and keep it from drifting.
 
 A frame whose energy jumps is re-fitted from its keypoints (from the previous frame's pose,
 and from alternative starts: turned by half a turn, left and right exchanged) and flagged
-``failed`` when that does not bring it back.
+``failed`` when that does not bring it back. A re-fit that would move the body further from
+its predicted place than anyone moves in a frame (``reinit_max_shift``) is refused: the
+keypoints alone fix depth only through the body's apparent size, and one bad detection would
+otherwise teleport the body and, through the translation filter's velocity, send the frames
+after it drifting.
 """
 
 from __future__ import annotations
@@ -56,8 +66,9 @@ from monoavatar.perception.observations import Observations
 from monoavatar.render.raster import rasterize
 
 __all__ = ["LANDMARK_BONES", "FlowTargets", "MotionTrack", "TrackError", "TrackSettings",
-           "closeness_energy", "flow_targets", "rescale_landmarks",
-           "smooth_landmarks", "track_motion", "world_landmark_energy"]  # fmt: skip
+           "closeness_energy", "flow_targets", "hip_energy", "hip_positions", "rescale_landmarks",
+           "smooth_landmarks", "smooth_track", "track_motion",
+           "world_landmark_energy"]  # fmt: skip
 
 
 class TrackError(MonoavatarError, ValueError):
@@ -85,6 +96,11 @@ class TrackSettings:
     world_sigma: float = 10.0  # Geman-McClure scale, centimetres
     world_smooth: float = 2.0  # temporal Gaussian over the 3D landmarks, σ in frames (0: none)
     world_rescale: bool = True  # the 3D landmarks scaled to the body (rescale_landmarks)
+    hips: bool = True  # E_h, the hips placed by the 2D keypoints and 3D landmarks
+    hips_weight: float = 0.3
+    hips_sigma: float = 20.0  # Geman-McClure scale, centimetres
+    hips_window: int = 15  # frames of the running median over the per-frame hip positions
+    hips_smooth: float = 4.0  # then a Gaussian over frames, σ in frames (0: none)
     closeness_weight: float = 10.0
     closeness_to: str = "prediction"  # "prediction" (the Kalman filters') or "previous" (A.5)
     iterations: int = 20
@@ -92,13 +108,14 @@ class TrackSettings:
     first_iterations: int = 80
     reinit_factor: float = 3.0  # re-fit a frame whose energy exceeds this × the recent median
     recent: int = 30  # frames in that median
+    reinit_max_shift: float = 0.3  # metres: a re-fit this far from the predicted place is refused
     rotation_accel_var: float = 2e-3  # rad²/frame⁴
     rotation_measure_var: float = 1e-3  # rad²
     translation_accel_var: float = 1e-4  # m²/frame⁴
     translation_measure_var: float = 1e-4  # m²
 
     def __post_init__(self) -> None:
-        for name in ("flow_points", "iterations", "first_iterations", "recent"):
+        for name in ("flow_points", "iterations", "first_iterations", "recent", "hips_window"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
         if self.closeness_to not in ("prediction", "previous"):
@@ -106,6 +123,8 @@ class TrackSettings:
                              f"got {self.closeness_to!r}")  # fmt: skip
         if self.reinit_factor <= 1.0:
             raise ValueError(f"reinit_factor must be above 1, got {self.reinit_factor}")
+        if self.reinit_max_shift <= 0.0:
+            raise ValueError(f"reinit_max_shift must be positive, got {self.reinit_max_shift}")
 
 
 @dataclass(frozen=True)
@@ -340,6 +359,10 @@ def _track(body: BodyModel, obs: Observations, settings: TrackSettings,
             with torch.no_grad():
                 model_kp = body.keypoints((rest + d)[None])[0].double().numpy()
             landmarks = rescale_landmarks(landmarks, model_kp, body.keypoint_valid.numpy())
+    anchors = None
+    if landmarks is not None and settings.hips:
+        anchors = smooth_track(hip_positions(obs.keypoints, landmarks, np.asarray(obs.camera.K)),
+                               settings.hips_window, settings.hips_smooth)
     clock = {"predict": 0.0, "flow": 0.0, "fit": 0.0, "refit": 0.0}
     bar = tqdm(range(first, n), desc="track", unit="frame", disable=not progress)
     for i in bar:
@@ -377,15 +400,20 @@ def _track(body: BodyModel, obs: Observations, settings: TrackSettings,
         world = None
         if landmarks is not None and np.isfinite(landmarks[i]).any():
             world = torch.as_tensor(landmarks[i : i + 1], dtype=dtype)
+        hips = None
+        if anchors is not None and np.isfinite(anchors[i]).all():
+            hips = torch.as_tensor(anchors[i : i + 1], dtype=dtype)
         p_i, t_i, e_i = _fit_frame(ctx, sub, frames, pred_p, pred_t, history, flow, surface,
-                                   settings, iterations, world)  # fmt: skip
+                                   settings, iterations, world, hips)  # fmt: skip
         clock["fit"] += time.perf_counter() - t0
         recent = energy[max(0, i - settings.recent) : i]
         recent = recent[np.isfinite(recent)]
         reference = float(np.median(recent)) if len(recent) else e_i
         if len(recent) and e_i > settings.reinit_factor * max(reference, 0.5):
             t0 = time.perf_counter()
-            p_i, t_i, e_i = _refit(ctx, sub, frames, done_p, done_t, p_i, t_i, e_i)
+            p_r, t_r, e_r = _refit(ctx, sub, frames, done_p, done_t, p_i, t_i, e_i)
+            if np.linalg.norm(t_r - pred_t[0]) <= settings.reinit_max_shift:
+                p_i, t_i, e_i = p_r, t_r, e_r
             reinit[i] = True
             clock["refit"] += time.perf_counter() - t0
             if e_i > settings.reinit_factor * max(reference, 0.5) and e_i > ps.fail_energy:
@@ -482,10 +510,96 @@ def world_landmark_energy(keypoints: Tensor, camera: PinholeCamera, observed: Te
     return (conf * energies.geman_mcclure(r2, sigma)).sum(-1) / conf.sum(-1).clamp_min(1e-6)
 
 
+#: The landmarks :func:`hip_positions` solves with: shoulders, elbows, wrists, hips, knees,
+#: ankles.
+HIP_SOLVE_LANDMARKS = (11, 12, 13, 14, 15, 16, 23, 24, 25, 26, 27, 28)
+
+
+def hip_positions(keypoints: np.ndarray, landmarks: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Where the 2D keypoints and the 3D landmarks put the hips' midpoint in each frame.
+
+    The landmarks, relative to the hips in the hip-ray frame (the camera turned so that its
+    axis bisects the two hips' viewing rays, :func:`~monoavatar.core.geometry.ray_rotations`),
+    are turned to the camera's axes; the midpoint h is then the point for which each landmark
+    h + r_k lies on its keypoint's viewing ray d_k: d_k × (h + r_k) = 0, three linear equations
+    per landmark, solved for h in least squares weighted by the keypoints' confidences.
+
+    Args:
+        keypoints: (N, 33, 3) x px, y px, confidence.
+        landmarks: (N, 33, 4) x, y, z metres about the hips' midpoint in the hip-ray frame,
+            confidence (NaN rows: none).
+        K: (3, 3) intrinsics, pixels.
+    Returns:
+        (N, 3) camera frame, metres; NaN rows where fewer than four of
+        :data:`HIP_SOLVE_LANDMARKS` are seen (the two hips among them) or no landmarks exist.
+    """
+    idx = np.array(HIP_SOLVE_LANDMARKS)
+    kp = np.asarray(keypoints, dtype=np.float64)
+    rel = np.asarray(landmarks, dtype=np.float64)[:, idx, :3]
+    pixels = np.concatenate([np.nan_to_num(kp[..., :2]), np.ones((*kp.shape[:2], 1))], -1)
+    rays = pixels @ np.linalg.inv(np.asarray(K, dtype=np.float64)).T
+    unit = rays / np.linalg.norm(rays, axis=-1, keepdims=True)
+    mid = 0.5 * (unit[:, _LEFT_HIP] + unit[:, _RIGHT_HIP])
+    turn = ray_rotations(torch.as_tensor(mid)).numpy()  # (N, 3, 3)
+    r = np.einsum("nij,nkj->nki", turn, np.nan_to_num(rel))  # (N, K, 3) camera axes
+    d = unit[:, idx]  # (N, K, 3)
+    zero = np.zeros(d.shape[:2])
+    cross = np.stack([np.stack([zero, -d[..., 2], d[..., 1]], -1),
+                      np.stack([d[..., 2], zero, -d[..., 0]], -1),
+                      np.stack([-d[..., 1], d[..., 0], zero], -1)], -2)  # (N, K, 3, 3)
+    conf = np.clip(np.nan_to_num(kp[:, idx, 2]), 0.0, 1.0)
+    seen = (conf > 0) & np.isfinite(rel).all(-1)
+    w = np.where(seen, conf, 0.0)
+    A = np.einsum("nk,nkji,nkjl->nil", w, cross, cross)  # Σ w Cᵀ C
+    b = -np.einsum("nk,nkji,nkjl,nkl->ni", w, cross, cross, r)  # −Σ w Cᵀ C r
+    out = np.full((len(kp), 3), np.nan)
+    ok = (seen.sum(1) >= 4) & seen[:, 6] & seen[:, 7]  # the hips are entries 6 and 7
+    if ok.any():
+        out[ok] = np.linalg.solve(A[ok], b[ok][..., None])[..., 0]
+    return out
+
+
+def smooth_track(values: np.ndarray, window: int, sigma: float) -> np.ndarray:
+    """(N, C) → (N, C): per channel, the median of the finite values among the ``window``
+    frames centred on each (shorter at the ends; outliers out), then a Gaussian of σ =
+    ``sigma`` frames over those medians (jitter out; 0: none). NaN where a frame's window
+    holds no finite row."""
+    values = np.asarray(values, dtype=np.float64)
+    half = window // 2
+    med = np.full_like(values, np.nan)
+    for i in range(len(values)):
+        chunk = values[max(0, i - half) : i + half + 1]
+        rows = chunk[np.isfinite(chunk).all(-1)]
+        if len(rows):
+            med[i] = np.median(rows, axis=0)
+    if sigma <= 0:
+        return med
+    ok = np.isfinite(med).all(-1)
+    frames = np.arange(len(values))
+    kernel = np.exp(-0.5 * ((frames[:, None] - frames[None]) / sigma) ** 2) * ok[None]
+    out = np.full_like(values, np.nan)
+    total = kernel.sum(1)
+    out[ok] = (kernel[ok] @ np.nan_to_num(med)) / total[ok, None]
+    return out
+
+
+def hip_energy(keypoints: Tensor, camera: PinholeCamera, hips: Tensor, sigma: float) -> Tensor:
+    """The depth of the model's hips' midpoint against a position for it: the robust
+    ρ(Δ / σ), Δ the difference of their distances from the camera, centimetres (the 2D terms
+    place the hips across the image; this places them along the ray). keypoints (B, 33, 3)
+    world metres; hips (B, 3) camera frame, metres. Returns (B,)."""
+    R = torch.as_tensor(camera.R, dtype=keypoints.dtype)
+    t = torch.as_tensor(camera.t, dtype=keypoints.dtype)
+    mid = 0.5 * (keypoints[:, _LEFT_HIP] + keypoints[:, _RIGHT_HIP]) @ R.T + t
+    delta = (mid.norm(dim=-1) - hips.norm(dim=-1)) * 100.0
+    return energies.geman_mcclure(delta.pow(2), sigma)
+
+
 def _fit_frame(ctx: pe.EnergyContext, sub: pe.Subset, frames: pe.Frames, pred_p: np.ndarray,
                pred_t: np.ndarray, history: tuple[Tensor, Tensor, Tensor] | None,
                flow: FlowTargets | None, surface: Tensor, settings: TrackSettings, iterations: int,
-               world: Tensor | None = None) -> tuple[np.ndarray, np.ndarray, float]:  # fmt: skip
+               world: Tensor | None = None,
+               hips: Tensor | None = None) -> tuple[np.ndarray, np.ndarray, float]:  # fmt: skip
     """One frame by Eq. A.4 from the prediction (1, J, 3), (1, 3). Returns the pose (J, 3),
     translation (3,) and the energy without the flow and closeness terms."""
     var = pe.Variables(pred_p, pred_t, frames.keypoints.dtype)
@@ -502,6 +616,9 @@ def _fit_frame(ctx: pe.EnergyContext, sub: pe.Subset, frames: pe.Frames, pred_p:
         if world is not None:
             e = e + settings.world_weight * world_landmark_energy(
                 posed[0], ctx.camera, world, ctx.body.keypoint_valid, settings.world_sigma)
+        if hips is not None:
+            e = e + settings.hips_weight * hip_energy(posed[0], ctx.camera, hips,
+                                                      settings.hips_sigma)
         if flow is not None:
             e = e + settings.flow_weight * _flow_energy(
                 ctx, surface, weights, transforms, flow, frames.targets.scale,
