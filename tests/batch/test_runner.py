@@ -119,15 +119,15 @@ def test_batch_command_refuses_unknown_options_before_running(tmp_path: Path,
 
 
 @pytest.mark.slow
-def test_three_avatars_and_a_corrupt_file_on_a_local_ray_cluster(tmp_path: Path) -> None:
-    """A real local Ray cluster (started and stopped by the batch): three small synthetic
-    turn-arounds become avatars, the corrupt video fails clearly; a second run does nothing
-    for the three and retries the fourth."""
+def test_two_avatars_and_a_corrupt_file_on_a_local_ray_cluster(tmp_path: Path) -> None:
+    """A real local Ray cluster (started and stopped by the batch): two small synthetic
+    turn-arounds become avatars side by side, the corrupt video fails clearly; a second run
+    does nothing for the two and retries the third."""
     pytest.importorskip("ray")  # a dev install has it; the code path is tested above without
     from monoavatar.synth.scene import SynthConfig, generate
 
     inputs = []
-    for seed in (11, 12, 13):
+    for seed in (11, 12):
         folder = tmp_path / "in" / f"turn{seed}"
         generate(folder, SynthConfig(kind="turnaround", frames=8, seed=seed, width=192,
                                      height=192, texture_size=64), progress=False)  # fmt: skip
@@ -141,18 +141,17 @@ def test_three_avatars_and_a_corrupt_file_on_a_local_ray_cluster(tmp_path: Path)
     first = run_batch(inputs, out, settings)
     assert first.engine.startswith("ray ")
     status = {i.name: i.status for i in first.items}
-    assert status == {"turn11": "done", "turn12": "done", "turn13": "done", "broken": "failed"}
-    for name in ("turn11", "turn12", "turn13"):
+    assert status == {"turn11": "done", "turn12": "done", "broken": "failed"}
+    for name in ("turn11", "turn12"):
         report = json.loads((out / name / "report.json").read_text())
         assert report["settings"]["fast"] is True and (out / name / "avatar.glb").is_file()
     broken = next(i for i in first.items if i.name == "broken")
     assert broken.returncode == 2 and "broken.mp4" in broken.error
     assert sorted(p.name for p in (out / "broken").iterdir()) == ["log.txt"]
     summary = json.loads((out / "batch.json").read_text())
-    assert sorted(i["status"] for i in summary["items"]) == ["done", "done", "done", "failed"]
+    assert sorted(i["status"] for i in summary["items"]) == ["done", "done", "failed"]
     stamp = (out / "turn11" / "avatar.glb").stat().st_mtime_ns
     second = run_batch(inputs, out, settings)
     status = {i.name: i.status for i in second.items}
-    assert status == {"turn11": "skipped", "turn12": "skipped", "turn13": "skipped",
-                      "broken": "failed"}  # fmt: skip
+    assert status == {"turn11": "skipped", "turn12": "skipped", "broken": "failed"}
     assert (out / "turn11" / "avatar.glb").stat().st_mtime_ns == stamp
