@@ -1,0 +1,124 @@
+"""Photo oracles (Paper E): which part of the map target does the surface metric need?
+
+For each photo of a split (the dev split by default: never a sealed one for this), the photo
+pipeline runs as shipped, then its fitted six-phenotype body is given maps that are *exact* for
+part of the truth, and each result is scored with the benchmark's metric (bi-directional
+vertex-to-surface distance after pose and scale alignment, mm):
+
+* ``body``: the fitted body alone, no maps;
+* ``maps``: the shipped network's maps (what ``monoavatar photo`` gives);
+* ``exact``: the exact training target (the subject's whole surface: its 256 local shape
+  changes, garments and hair);
+* ``exact_clothing``: garments and hair only, on the subject's six-phenotype body;
+* ``exact_local``: the local shape changes only, no garments or hair;
+* ``coverage_mean_thick``: where the subject is clothed, exactly, but with the mean thickness of
+  its clothing everywhere (what a garment-coverage classifier could give at best).
+
+Every oracle map is made as the training targets are (``learn.uvmaps.displacement_targets``)
+against the subject's true six-phenotype body, then added to the *fitted* body, so the fitter's
+own shape error stays in every figure. Run::
+
+    python benchmarks/bench_photo_oracles.py -o out/photo-oracles [--photos 12]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import torch
+from PIL import Image
+
+from monoavatar.bench.metrics import Rig, surface_metrics
+from monoavatar.body import load_body_model
+from monoavatar.core.geometry import vertex_normals
+from monoavatar.learn.photo_data import PhotoDataSettings, base_fine_vertices, render_photo
+from monoavatar.learn.photo_model import load_photo_network
+from monoavatar.learn.shards import iter_seeds
+from monoavatar.learn.uvmaps import DISPLACEMENT_SCALE, displacement_targets, sample_vertex_values
+from monoavatar.pipelines.photo import PhotoConfig, photo
+
+ORACLES = ("body", "maps", "exact", "exact_clothing", "exact_local", "coverage_mean_thick")
+#: Displacements (m) above this count as clothed for ``coverage_mean_thick``.
+CLOTHED = 0.004
+
+
+def _score(scene, result, body, local_body, layout) -> dict[str, float]:  # type: ignore[no-untyped-def]  # noqa: E501
+    """Each oracle's surface error (mm) for one photo's ``scene`` and its ``photo`` result."""
+    faces = layout.subdivision.faces.numpy()
+    truth = scene.subject.rest_vertices.double().numpy()
+    with torch.no_grad():
+        _, joints = body.rest_shape(torch.as_tensor(result.track.shape, dtype=body.dtype)[None])
+    rig = Rig(layout.subdivision.weights.double().numpy(), joints[0].double().numpy(),
+              tuple(body.parents))  # fmt: skip
+    fitted = base_fine_vertices(body, layout, result.track.shape).numpy()
+    true_base = base_fine_vertices(body, layout, scene.subject.spec.shape[:6])
+
+    def error(vertices: np.ndarray) -> float:
+        return surface_metrics(vertices, faces, truth, faces, rig=rig)[0].mean_mm
+
+    def exact_maps(surface: torch.Tensor) -> np.ndarray:
+        """``surface`` (V, 3) as maps against the true base, added to the fitted body."""
+        target = displacement_targets(layout, true_base, surface)
+        return fitted + sample_vertex_values(layout, target[..., :3] * DISPLACEMENT_SCALE)
+
+    normals = vertex_normals(true_base, layout.subdivision.faces).double()
+    thickness = torch.as_tensor(scene.subject.displacement, dtype=torch.float64)
+    with torch.no_grad():
+        rest_local, _ = local_body.rest_shape(scene.subject.shape)
+        fine_local = layout.subdivision.apply(rest_local)[0].double()
+    clothed = thickness > CLOTHED
+    flat = (clothed * thickness[clothed].mean())[:, None] * normals
+    return {"body": error(fitted), "maps": error(result.vertices),
+            "exact": error(exact_maps(scene.subject.rest_vertices.double())),
+            "exact_clothing": error(exact_maps(true_base + thickness[:, None] * normals)),
+            "exact_local": error(exact_maps(fine_local)),
+            "coverage_mean_thick": error(exact_maps(true_base + flat))}  # fmt: skip
+
+
+def run(out: Path, split: str, count: int) -> list[dict]:
+    local_body, body = load_body_model("anny-local"), load_body_model("anny")
+    layout = load_photo_network(body, None).layout
+    rows = []
+    for seed in iter_seeds(split, count):
+        scene = render_photo(local_body, seed, PhotoDataSettings())
+        folder = out / f"{split}-{seed}"
+        shutil.rmtree(folder, ignore_errors=True)
+        folder.mkdir(parents=True)
+        Image.fromarray(scene.image).save(folder / "photo.png")
+        scene.camera.save_json(folder / "camera.json")
+        config = PhotoConfig(progress=False)
+        config.input.camera = str(folder / "camera.json")
+        try:
+            result = photo(folder / "photo.png", folder / "avatar", config)
+        except Exception as error:  # a photo the pipeline refuses is reported, not scored
+            print(json.dumps({"seed": seed, "failed": str(error)}), flush=True)
+            continue
+        row = {"seed": seed, "clothing": scene.subject.spec.clothing,
+               **_score(scene, result, body, local_body, layout)}  # fmt: skip
+        print(json.dumps({k: round(v, 2) if isinstance(v, float) else v
+                          for k, v in row.items()}), flush=True)  # fmt: skip
+        rows.append(row)
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("-o", "--out", type=Path, required=True)
+    parser.add_argument("--split", choices=("train", "val"), default="val",
+                        help="photos to score (never the sealed test split)")  # fmt: skip
+    parser.add_argument("--photos", type=int, default=12)
+    args = parser.parse_args()
+    rows = run(args.out, args.split, args.photos)
+    mean = {k: round(float(np.mean([r[k] for r in rows])), 2) for k in ORACLES}
+    print("| photos | " + " | ".join(ORACLES) + " |")
+    print("|---|" + "---|" * len(ORACLES))
+    print(f"| {len(rows)} | " + " | ".join(f"{mean[k]:.2f}" for k in ORACLES) + " |")
+    (args.out / "oracles.json").write_text(json.dumps({"rows": rows, "mean": mean}, indent=1))
+
+
+if __name__ == "__main__":
+    main()
