@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import errno
 import os
+import signal
 import sys
 import warnings
 from collections.abc import Callable, Iterator
@@ -917,6 +918,10 @@ def _run_view(args: argparse.Namespace) -> int:
         return 0
     server = serve_page(page_html(page), args.port)
     port = server.server_address[1]
+    # Ctrl-C stops the server even where it was started with SIGINT ignored (a background
+    # job of a script, nohup): Python only turns SIGINT into KeyboardInterrupt by default
+    # when it was not ignored at start.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     print(f"monoavatar view: http://127.0.0.1:{port}/ (Ctrl-C to stop)", flush=True)
     try:
         server.serve_forever()
