@@ -30,6 +30,7 @@ import numpy as np
 import torch
 
 from monoavatar.body import load_body_model
+from monoavatar.core.landmarks import LIMB_LANDMARKS
 from monoavatar.eval.joints import tracking_errors
 from monoavatar.fit.pose import PoseSettings, fit_poses
 from monoavatar.fit.tracking import TrackSettings, track_motion
@@ -38,8 +39,6 @@ from monoavatar.pipelines.stages import InputSettings, load_inputs
 from monoavatar.pipelines.track import EVAL_JOINTS, TrackConfig, lifted
 
 VARIANTS = ("default", "lifter", "no-flow", "no-keypoints", "no-world", "per-frame")
-#: The 12 limb landmarks of the 3D landmark figures (shoulders to ankles).
-LIMB_LANDMARKS = [11, 12, 13, 14, 15, 16, 23, 24, 25, 26, 27, 28]
 ORACLES = ("exact-3d", "exact-2d", "exact-2d-3d")
 
 
@@ -66,7 +65,8 @@ def landmark_errors(world: np.ndarray, truth_rel: np.ndarray) -> dict[str, float
     from monoavatar.eval.alignment import align_similarity
 
     scaled, similar = [], []
-    for w, t in zip(world[:, LIMB_LANDMARKS, :3], truth_rel[:, LIMB_LANDMARKS], strict=True):
+    limbs = list(LIMB_LANDMARKS)
+    for w, t in zip(world[:, limbs, :3], truth_rel[:, limbs], strict=True):
         if not np.isfinite(w).all():
             continue
         s = float((w * t).sum() / max((w * w).sum(), 1e-12))

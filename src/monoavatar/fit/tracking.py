@@ -55,6 +55,7 @@ from monoavatar.body import BodyModel, lbs
 from monoavatar.core.camera import PinholeCamera
 from monoavatar.core.errors import MonoavatarError
 from monoavatar.core.geometry import ray_rotations
+from monoavatar.core.landmarks import LIMB_LANDMARKS
 from monoavatar.core.threads import torch_threads
 from monoavatar.fit import energies
 from monoavatar.fit import pose_energy as pe
@@ -510,11 +511,6 @@ def world_landmark_energy(keypoints: Tensor, camera: PinholeCamera, observed: Te
     return (conf * energies.geman_mcclure(r2, sigma)).sum(-1) / conf.sum(-1).clamp_min(1e-6)
 
 
-#: The landmarks :func:`hip_positions` solves with: shoulders, elbows, wrists, hips, knees,
-#: ankles.
-HIP_SOLVE_LANDMARKS = (11, 12, 13, 14, 15, 16, 23, 24, 25, 26, 27, 28)
-
-
 def hip_positions(keypoints: np.ndarray, landmarks: np.ndarray, K: np.ndarray) -> np.ndarray:
     """Where the 2D keypoints and the 3D landmarks put the hips' midpoint in each frame.
 
@@ -530,10 +526,11 @@ def hip_positions(keypoints: np.ndarray, landmarks: np.ndarray, K: np.ndarray) -
             confidence (NaN rows: none).
         K: (3, 3) intrinsics, pixels.
     Returns:
-        (N, 3) camera frame, metres; NaN rows where fewer than four of
-        :data:`HIP_SOLVE_LANDMARKS` are seen (the two hips among them) or no landmarks exist.
+        (N, 3) camera frame, metres; NaN rows where fewer than four of the limb landmarks
+        (:data:`~monoavatar.core.landmarks.LIMB_LANDMARKS`) are seen (the two hips among
+        them) or no landmarks exist.
     """
-    idx = np.array(HIP_SOLVE_LANDMARKS)
+    idx = np.array(LIMB_LANDMARKS)
     kp = np.asarray(keypoints, dtype=np.float64)
     rel = np.asarray(landmarks, dtype=np.float64)[:, idx, :3]
     pixels = np.concatenate([np.nan_to_num(kp[..., :2]), np.ones((*kp.shape[:2], 1))], -1)

@@ -38,6 +38,7 @@ from torch import Tensor
 
 from monoavatar.body import BodyModel
 from monoavatar.core.errors import MonoavatarError
+from monoavatar.core.landmarks import LIMB_LANDMARKS
 from monoavatar.learn.lifter import (
     LEFT_RIGHT_SWAPS,
     LifterNetwork,
@@ -52,7 +53,7 @@ __all__ = ["LifterTrainConfig", "LifterTrainError", "LifterTrainResult", "genera
 
 #: The 12 limb landmarks of the validation figure: shoulders, elbows, wrists, hips, knees,
 #: ankles.
-LIMBS = (11, 12, 13, 14, 15, 16, 23, 24, 25, 26, 27, 28)
+LIMBS = LIMB_LANDMARKS
 _TRAJECTORY = ("sequences", "frames", "steps", "batch", "lr", "seed", "noise", "swap")
 
 
