@@ -15,6 +15,7 @@ from monoavatar.eval import (
     point_to_surface_distance,
     surface_error_after_alignment,
 )
+from monoavatar.eval.surface import TriangleIndex
 
 # ---------------------------------------------------------------------------- fixtures
 
@@ -99,7 +100,8 @@ def test_degenerate_triangles_give_finite_exact_distances() -> None:
 
 def test_matches_independent_brute_force_on_a_triangle_soup() -> None:
     """Candidate search is exact: equals trimesh's per-triangle closest point, minimised
-    over every triangle, on triangles of very different sizes."""
+    over every triangle, on triangles of very different sizes; also when few nearest
+    centroids are taken per bin (most points then need the ball search)."""
     rng = np.random.default_rng(3)
     sizes = rng.uniform(0.005, 1.0, size=(150, 1, 1))
     tri = rng.normal(size=(150, 3, 3)) * sizes + rng.normal(size=(150, 1, 3))
@@ -113,9 +115,11 @@ def test_matches_independent_brute_force_on_a_triangle_soup() -> None:
     brute = np.linalg.norm(
         trimesh.triangles.closest_point(rep_tri, rep_points) - rep_points, axis=1
     )
-    np.testing.assert_allclose(
-        ours.distances, brute.reshape(len(points), -1).min(axis=1), atol=1e-12
-    )
+    truth = brute.reshape(len(points), -1).min(axis=1)
+    np.testing.assert_allclose(ours.distances, truth, atol=1e-12)
+    for k in (1, 3):
+        few = TriangleIndex(tri, k=k).query(points)
+        np.testing.assert_allclose(few.distances, truth, atol=1e-12)
     # The reported point is on the reported face, at the reported barycentric coordinates.
     rebuilt = np.einsum("ni,nij->nj", ours.barycentric, tri[ours.face_indices])
     np.testing.assert_allclose(rebuilt, ours.points, atol=1e-12)

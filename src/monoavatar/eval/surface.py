@@ -39,14 +39,13 @@ __all__ = [
 
 # Pairs (point, candidate triangle) evaluated at once; bounds memory to a few hundred MB.
 _PAIR_CHUNK = 200_000
-# Query points per KD-tree ball query.
-_POINT_CHUNK = 4096
+# Nearest triangle centroids per point and bin taken in one array query; points with more
+# candidates than that fall back to a ball query.
+_NEAREST_CENTROIDS = 16
 
 
 # --------------------------------------------------------------------------------------------
 # exact closest point on triangles
-
-
 
 
 def _closest_on_segments(
@@ -144,27 +143,32 @@ class ClosestPoints:
 class TriangleIndex:
     """Exact nearest-triangle search over a fixed set of triangles.
 
-    Each triangle is bounded by the sphere around its centroid whose radius ``R`` is the largest
-    centroid-to-vertex distance, so ``dist(p, triangle) >= |p - centroid| - R``. A query first
+    Each triangle is bounded by the sphere around its centroid whose radius ``r`` is the largest
+    centroid-to-vertex distance, so ``dist(p, triangle) >= |p - centroid| - r``. A query first
     takes the exact distance ``d`` to the triangle with the nearest centroid as an upper bound,
-    then evaluates exactly every triangle whose centroid lies within ``d + R`` of the query. To
-    keep the search tight for meshes mixing small and large triangles, triangles are grouped
-    into bins of similar ``R`` (powers of two above the median), one KD-tree per bin.
+    then evaluates exactly every triangle with ``|p - centroid| - r <= d``. The candidates come
+    from KD-trees of the centroids, one per bin of triangles of similar ``r`` (powers of two
+    above the median, ``R`` the largest in the bin) searched within ``d + R``: the ``k`` nearest
+    centroids in one array query, and for the few points with more candidates than that, every
+    centroid in the ball.
     """
 
-    def __init__(self, triangles: FloatArray) -> None:
+    def __init__(self, triangles: FloatArray, *, k: int = _NEAREST_CENTROIDS) -> None:
         self.triangles = triangles  # (F, 3, 3)
+        self.k = k
         self.centroids = triangles.mean(axis=1)
-        radii = np.sqrt(((triangles - self.centroids[:, None, :]) ** 2).sum(axis=2)).max(axis=1)
+        self.radii = np.sqrt(((triangles - self.centroids[:, None, :]) ** 2).sum(axis=2)).max(
+            axis=1
+        )
         self.all_tree = cKDTree(self.centroids)
-        positive = radii[radii > 0]
+        positive = self.radii[self.radii > 0]
         reference = float(np.median(positive)) if positive.size else 1.0
-        level = np.ceil(np.log2(np.maximum(radii, reference) / reference)).astype(np.int64)
+        level = np.ceil(np.log2(np.maximum(self.radii, reference) / reference)).astype(np.int64)
         self.bins: list[tuple[IntArray, float, Any]] = []
         for value in np.unique(level):
             members = np.flatnonzero(level == value).astype(np.int64)
             self.bins.append(
-                (members, float(radii[members].max()), cKDTree(self.centroids[members]))
+                (members, float(self.radii[members].max()), cKDTree(self.centroids[members]))
             )
 
     def query(self, points: FloatArray) -> ClosestPoints:
@@ -177,46 +181,58 @@ class TriangleIndex:
                 barycentric=np.zeros((0, 3)),
             )
         _, first = self.all_tree.query(points)
-        best_face = np.asarray(first, dtype=np.int64)
-        best_point, best_bary, best_d2 = _closest_on_triangles(points, self.triangles[best_face])
-
-        for members, bound, tree in self.bins:
-            for start in range(0, n, _POINT_CHUNK):
-                stop = min(start + _POINT_CHUNK, n)
-                radius = (np.sqrt(best_d2[start:stop]) + bound) * (1.0 + 1e-9) + 1e-12
-                lists = tree.query_ball_point(points[start:stop], radius)
+        first = np.asarray(first, dtype=np.int64)
+        q, bary, d2 = _closest_on_triangles(points, self.triangles[first])
+        best = ClosestPoints(points=q, distances=d2, face_indices=first, barycentric=bary)
+        for members, radius, tree in self.bins:
+            # Only a triangle with |p - centroid| - r <= the best distance so far can be closer.
+            bound = np.sqrt(best.distances) * (1.0 + 1e-9) + 1e-12
+            reach = bound + radius
+            cap = float(np.quantile(reach, 0.99))  # a scalar bound keeps far bins cheap
+            k = min(self.k, len(members))
+            found, nearest = tree.query(points, k=k, distance_upper_bound=cap)
+            found = np.asarray(found).reshape(n, k)
+            nearest = np.asarray(nearest, dtype=np.int64).reshape(n, k)
+            hit = found <= reach[:, None]
+            pid = np.broadcast_to(np.arange(n)[:, None], (n, k))[hit]
+            fid = members[nearest[hit]]
+            # Rows of k hits, and points that reach beyond the cap: search the whole ball.
+            more = np.flatnonzero((hit[:, -1] & (k < len(members))) | (reach > cap))
+            if more.size:
+                lists = tree.query_ball_point(points[more], reach[more])
                 counts = np.fromiter((len(item) for item in lists), np.int64, len(lists))
                 total = int(counts.sum())
-                if total == 0:
-                    continue
-                point_ids = np.repeat(np.arange(start, stop, dtype=np.int64), counts)
-                face_ids = members[
-                    np.fromiter(itertools.chain.from_iterable(lists), np.int64, total)
-                ]
-                for lo in range(0, total, _PAIR_CHUNK):
-                    pid = point_ids[lo : lo + _PAIR_CHUNK]
-                    fid = face_ids[lo : lo + _PAIR_CHUNK]
-                    q, bary, d2 = _closest_on_triangles(points[pid], self.triangles[fid])
-                    # Best pair per point: sort by (point, distance), take each group's first.
-                    order = np.lexsort((d2, pid))
-                    pid_sorted = pid[order]
-                    is_first = np.ones(len(order), dtype=bool)
-                    is_first[1:] = pid_sorted[1:] != pid_sorted[:-1]
-                    sel = order[is_first]
-                    better = d2[sel] < best_d2[pid[sel]]
-                    sel = sel[better]
-                    target = pid[sel]
-                    best_d2[target] = d2[sel]
-                    best_face[target] = fid[sel]
-                    best_point[target] = q[sel]
-                    best_bary[target] = bary[sel]
+                extra = members[np.fromiter(itertools.chain.from_iterable(lists), np.int64, total)]
+                keep = ~np.isin(pid, more)
+                pid = np.concatenate([pid[keep], np.repeat(more, counts)])
+                fid = np.concatenate([fid[keep], extra])
+            # The bin's bound R let in triangles whose own sphere is smaller: test each.
+            gap = np.linalg.norm(points[pid] - self.centroids[fid], axis=1) - self.radii[fid]
+            close = gap <= bound[pid]
+            self._update(best, points, pid[close], fid[close])
+        best.distances[:] = np.sqrt(best.distances)
+        return best
 
-        return ClosestPoints(
-            points=best_point,
-            distances=np.sqrt(best_d2),
-            face_indices=best_face,
-            barycentric=best_bary,
-        )
+    def _update(self, best: ClosestPoints, points: FloatArray, pid: IntArray,
+                fid: IntArray) -> None:  # fmt: skip
+        """Evaluate the pairs (point ``pid``, triangle ``fid``) exactly and keep, per point,
+        the closest triangle found so far (``best.distances`` holds squared distances)."""
+        for lo in range(0, len(pid), _PAIR_CHUNK):
+            p_ids = pid[lo : lo + _PAIR_CHUNK]
+            f_ids = fid[lo : lo + _PAIR_CHUNK]
+            q, bary, d2 = _closest_on_triangles(points[p_ids], self.triangles[f_ids])
+            # Best pair per point: sort by (point, distance), take each group's first.
+            order = np.lexsort((d2, p_ids))
+            sorted_ids = p_ids[order]
+            is_first = np.ones(len(order), dtype=bool)
+            is_first[1:] = sorted_ids[1:] != sorted_ids[:-1]
+            sel = order[is_first]
+            sel = sel[d2[sel] < best.distances[p_ids[sel]]]
+            target = p_ids[sel]
+            best.distances[target] = d2[sel]
+            best.face_indices[target] = f_ids[sel]
+            best.points[target] = q[sel]
+            best.barycentric[target] = bary[sel]
 
 
 def closest_points_on_mesh(
