@@ -918,10 +918,6 @@ def _run_view(args: argparse.Namespace) -> int:
         return 0
     server = serve_page(page_html(page), args.port)
     port = server.server_address[1]
-    # Ctrl-C stops the server even where it was started with SIGINT ignored (a background
-    # job of a script, nohup): Python only turns SIGINT into KeyboardInterrupt by default
-    # when it was not ignored at start.
-    signal.signal(signal.SIGINT, signal.default_int_handler)
     print(f"monoavatar view: http://127.0.0.1:{port}/ (Ctrl-C to stop)", flush=True)
     try:
         server.serve_forever()
@@ -1200,6 +1196,32 @@ def _show_warning(verb: str, message: Warning | str, category: type[Warning], fi
     print(f"monoavatar {verb}: {label}: {message}", file=file or sys.stderr)
 
 
+def _raise_interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
+@contextmanager
+def _interruptible() -> Iterator[None]:
+    """SIGINT (Ctrl-C) and SIGTERM (``kill``) stop the command as Ctrl-C on a terminal does:
+    staged files removed, a batch's running commands stopped. Also where the process started
+    with SIGINT ignored (a script's background job), where Python raises no KeyboardInterrupt;
+    the commands a batch starts then inherit the default disposition, not the ignored one.
+    The previous handlers come back afterwards (``main`` called in-process)."""
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield  # signal handlers can only be set in the main thread
+        return
+    previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, _raise_interrupt)
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
+
+
 @contextmanager
 def _drop_if_empty(folder: Path | None) -> Iterator[None]:
     """Remove ``folder`` (one this run created) if the run fails and leaves it empty."""
@@ -1231,7 +1253,8 @@ def main(argv: list[str] | None = None) -> int:
     output = getattr(args, "output", None)
     created = isinstance(output, Path) and not output.exists()
     try:
-        with warnings.catch_warnings(), _drop_if_empty(output if created else None):
+        with (warnings.catch_warnings(), _interruptible(),
+              _drop_if_empty(output if created else None)):  # fmt: skip
             warnings.showwarning = partial(_show_warning, args.command)
             return int(args.run(args))
     except MonoavatarError as exc:

@@ -155,3 +155,43 @@ def test_two_avatars_and_a_corrupt_file_on_a_local_ray_cluster(tmp_path: Path) -
     status = {i.name: i.status for i in second.items}
     assert status == {"turn11": "skipped", "turn12": "skipped", "broken": "failed"}
     assert (out / "turn11" / "avatar.glb").stat().st_mtime_ns == stamp
+
+
+@pytest.mark.slow  # a reconstruction started and stopped: about 20 s
+def test_sigterm_stops_a_batch_started_with_sigint_ignored(tmp_path: Path) -> None:
+    """A batch run as a script's background job (SIGINT ignored) and stopped with ``kill``
+    (SIGTERM) interrupts its running command, which removes its staged files and says so,
+    instead of leaving it to run on, or to be killed half-written after the grace period."""
+    import signal
+    import subprocess
+    import time
+
+    from monoavatar.synth.scene import SynthConfig, generate
+
+    scene = tmp_path / "in" / "turn"
+    generate(scene, SynthConfig(kind="turnaround", frames=8, seed=11, width=192, height=192,
+                                texture_size=64), progress=False)  # fmt: skip
+    out = tmp_path / "out"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "monoavatar.cli", "batch", str(scene), "-o", str(out),
+         "--no-ray", "--quiet"],
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN),
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )  # fmt: skip
+    log = out / "turn" / "log.txt"
+    try:
+        deadline = time.monotonic() + 120
+        while not log.is_file():
+            assert proc.poll() is None and time.monotonic() < deadline, "no command started"
+            time.sleep(0.2)
+        time.sleep(10.0)  # the command is under way (it takes about 40 s)
+        assert proc.poll() is None
+        proc.send_signal(signal.SIGTERM)
+        output, _ = proc.communicate(timeout=25)  # well before the 30-s grace of a kill
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, output
+    assert log.read_text().rstrip().endswith("interrupted")  # the command's own clean exit
+    assert not [p for p in out.rglob("*") if "staging" in p.name]
+    assert not (out / "turn" / "avatar.glb").exists()
