@@ -3,11 +3,20 @@ and caches kernels; later builds take about half a second)."""
 
 from __future__ import annotations
 
-import pytest
-import torch
+import os
 
-from monoavatar.body import load_body_model
-from monoavatar.body.model import BodyModel
+if os.environ.get("PYTEST_XDIST_WORKER"):  # one process per core: one thread each
+    for _name in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+        os.environ.setdefault(_name, "1")
+
+import pytest  # noqa: E402
+import torch  # noqa: E402
+
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    torch.set_num_threads(1)
+
+from monoavatar.body import load_body_model  # noqa: E402
+from monoavatar.body.model import BodyModel  # noqa: E402
 
 
 @pytest.fixture(scope="session")
