@@ -46,3 +46,37 @@ def test_json_round_trip_and_errors(tmp_path):
     with pytest.raises(CameraError, match="K must be 3x3"):
         PinholeCamera(K=np.eye(2), R=np.eye(3), t=np.zeros(3), width=10, height=10)
     assert cam.scaled(0.5).K[0, 0] == 250
+
+
+def test_camera_rays_scaled_by_depth_are_the_projected_points():
+    """camera_rays inverts the projection: a camera-frame point is its pixel's ray times its
+    depth (rays have z = 1)."""
+    from monoavatar.core.geometry import camera_rays
+
+    K = np.array([[610.0, 0, 250.5], [0, 590.0, 281.25], [0, 0, 1]])
+    rng = np.random.default_rng(4)
+    pts = rng.normal(size=(7, 5, 3)) * 0.4 + np.array([0.1, -0.2, 3.0])
+    uvw = pts @ K.T
+    pixels = uvw[..., :2] / uvw[..., 2:]
+    rays = camera_rays(pixels, K)
+    assert rays.shape == (7, 5, 3) and np.allclose(rays[..., 2], 1.0)
+    np.testing.assert_allclose(rays * pts[..., 2:], pts, atol=1e-12)
+
+
+def test_hip_ray_rotation_turns_the_axis_onto_the_hips_bisector():
+    from monoavatar.core.geometry import hip_ray_rotations
+    from monoavatar.core.landmarks import HIP_LANDMARKS, MEDIAPIPE_LANDMARKS
+
+    assert [MEDIAPIPE_LANDMARKS[i] for i in HIP_LANDMARKS] == ["left_hip", "right_hip"]
+    rng = np.random.default_rng(5)
+    points = torch.as_tensor(rng.normal(size=(4, 33, 3)) * 0.3 + np.array([0.8, 0.3, 2.5]))
+    R = hip_ray_rotations(points)
+    unit = points / points.norm(dim=-1, keepdim=True)
+    bisector = unit[:, 23] + unit[:, 24]
+    bisector = bisector / bisector.norm(dim=-1, keepdim=True)
+    assert torch.allclose(R[..., :, 2], bisector, atol=1e-12)  # the camera axis, turned
+    eye = torch.eye(3, dtype=R.dtype).expand_as(R)
+    assert torch.allclose(R.transpose(-1, -2) @ R, eye, atol=1e-12)
+    assert torch.allclose(torch.linalg.det(R), torch.ones(4, dtype=R.dtype))
+    # any length: rays and points along them give the same frame
+    assert torch.allclose(hip_ray_rotations(points * 3.0), R, atol=1e-12)

@@ -1,6 +1,6 @@
 """Geometry shared by every layer above: argument checks for vertex and face arrays,
-area-weighted vertex normals, the cotangent Laplacian, and the rotation taking the optical axis
-onto a viewing ray."""
+area-weighted vertex normals, the cotangent Laplacian, viewing rays of pixels, and the rotation
+taking the optical axis onto a viewing ray (the hip-ray frame of the landmarks among them)."""
 
 from __future__ import annotations
 
@@ -9,8 +9,10 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-__all__ = ["cotangent_laplacian", "face_indices", "float_tensor", "ray_rotations", "vertex_normals",
-           "writable"]  # fmt: skip
+from monoavatar.core.landmarks import HIP_LANDMARKS
+
+__all__ = ["camera_rays", "cotangent_laplacian", "face_indices", "float_tensor",
+           "hip_ray_rotations", "ray_rotations", "vertex_normals", "writable"]  # fmt: skip
 
 
 def writable(x: object) -> object:
@@ -114,3 +116,21 @@ def ray_rotations(directions: Tensor) -> Tensor:
     ], dim=-2)  # fmt: skip
     flip = torch.diag(torch.tensor([1.0, -1.0, -1.0], dtype=d.dtype, device=d.device))
     return torch.where((c <= -1 + 1e-9)[..., None, None], flip, r)
+
+
+def camera_rays(pixels: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """(..., 2) pixel coordinates → (..., 3) their viewing rays K⁻¹ (x, y, 1)ᵀ in the camera
+    frame (OpenCV axes, z = 1, float64); ``K`` (3, 3) the intrinsics, pixels."""
+    px = np.asarray(pixels, dtype=np.float64)
+    homogeneous = np.concatenate([px, np.ones((*px.shape[:-1], 1))], axis=-1)
+    return homogeneous @ np.linalg.inv(np.asarray(K, dtype=np.float64)).T
+
+
+def hip_ray_rotations(rays: Tensor) -> Tensor:
+    """(..., 33, 3) viewing rays of mediapipe's landmarks (or camera-frame points; any length,
+    z > 0) → (..., 3, 3) the *hip-ray frame*: the camera turned (:func:`ray_rotations`) so its
+    axis bisects the two hips' rays; its columns are that frame's axes in camera
+    coordinates."""
+    unit = rays / rays.norm(dim=-1, keepdim=True)
+    left, right = HIP_LANDMARKS
+    return ray_rotations(0.5 * (unit[..., left, :] + unit[..., right, :]))

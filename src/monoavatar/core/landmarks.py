@@ -30,6 +30,9 @@ COCO17_IN_MEDIAPIPE: tuple[int, ...] = (
     0, 2, 5, 7, 8, 11, 12, 13, 14, 15, 16, 23, 24, 25, 26, 27, 28
 )  # fmt: skip
 
+#: The left and right hip, as indices into MEDIAPIPE_LANDMARKS.
+HIP_LANDMARKS: tuple[int, int] = (23, 24)
+
 #: The limb landmarks, shoulders to ankles (both sides), as indices into MEDIAPIPE_LANDMARKS.
 LIMB_LANDMARKS: tuple[int, ...] = (11, 12, 13, 14, 15, 16, 23, 24, 25, 26, 27, 28)
 

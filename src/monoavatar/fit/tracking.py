@@ -54,8 +54,8 @@ from tqdm import tqdm
 from monoavatar.body import BodyModel, lbs
 from monoavatar.core.camera import PinholeCamera
 from monoavatar.core.errors import MonoavatarError
-from monoavatar.core.geometry import ray_rotations
-from monoavatar.core.landmarks import LIMB_LANDMARKS
+from monoavatar.core.geometry import camera_rays, hip_ray_rotations, ray_rotations
+from monoavatar.core.landmarks import HIP_LANDMARKS, LIMB_LANDMARKS
 from monoavatar.core.threads import torch_threads
 from monoavatar.fit import energies
 from monoavatar.fit import pose_energy as pe
@@ -443,7 +443,7 @@ def _track(body: BodyModel, obs: Observations, settings: TrackSettings,
     )  # fmt: skip
 
 
-_LEFT_HIP, _RIGHT_HIP = 23, 24
+_LEFT_HIP, _RIGHT_HIP = HIP_LANDMARKS
 
 
 def closeness_energy(root: Tensor, body: Tensor, translation: Tensor,
@@ -533,11 +533,9 @@ def hip_positions(keypoints: np.ndarray, landmarks: np.ndarray, K: np.ndarray) -
     idx = np.array(LIMB_LANDMARKS)
     kp = np.asarray(keypoints, dtype=np.float64)
     rel = np.asarray(landmarks, dtype=np.float64)[:, idx, :3]
-    pixels = np.concatenate([np.nan_to_num(kp[..., :2]), np.ones((*kp.shape[:2], 1))], -1)
-    rays = pixels @ np.linalg.inv(np.asarray(K, dtype=np.float64)).T
+    rays = camera_rays(np.nan_to_num(kp[..., :2]), K)
     unit = rays / np.linalg.norm(rays, axis=-1, keepdims=True)
-    mid = 0.5 * (unit[:, _LEFT_HIP] + unit[:, _RIGHT_HIP])
-    turn = ray_rotations(torch.as_tensor(mid)).numpy()  # (N, 3, 3)
+    turn = hip_ray_rotations(torch.as_tensor(unit)).numpy()  # (N, 3, 3)
     r = np.einsum("nij,nkj->nki", turn, np.nan_to_num(rel))  # (N, K, 3) camera axes
     d = unit[:, idx]  # (N, K, 3)
     zero = np.zeros(d.shape[:2])

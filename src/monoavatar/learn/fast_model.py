@@ -29,6 +29,7 @@ import torch
 from torch import Tensor, nn
 
 from monoavatar.core.errors import MonoavatarError
+from monoavatar.core.geometry import camera_rays
 
 __all__ = [
     "FastNetwork",
@@ -272,8 +273,7 @@ def solve_translation(points: np.ndarray, keypoints: np.ndarray, K: np.ndarray,
     w = np.where(keypoints[:, 2] >= min_confidence, keypoints[:, 2], 0.0)
     if (w > 0).sum() < 3:
         raise FastModelError("fewer than 3 confident keypoints: cannot place the body")
-    homog = np.concatenate([keypoints[:, :2], np.ones((len(keypoints), 1))], 1)
-    n = homog @ np.linalg.inv(K).T
+    n = camera_rays(keypoints[:, :2], K)
     rows, rhs = [], []
     for axis in (0, 1):
         a = np.zeros((len(points), 3))

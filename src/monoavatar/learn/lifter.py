@@ -24,14 +24,14 @@ import torch
 from torch import Tensor, nn
 
 from monoavatar.core.errors import MonoavatarError
-from monoavatar.core.geometry import ray_rotations
+from monoavatar.core.geometry import camera_rays, hip_ray_rotations
+from monoavatar.core.landmarks import HIP_LANDMARKS
 
 __all__ = ["LEFT_RIGHT_SWAPS", "LifterError", "LifterNetwork", "LifterSettings", "default_weights",
            "hip_ray_coordinates", "hip_ray_targets", "lift_landmarks", "load_lifter",
            "normalise_windows", "window_indices"]  # fmt: skip
 
 LANDMARKS = 33
-_HIPS = (23, 24)
 #: Left/right landmark pairs a 2D detector confuses (elbows, wrists, knees, ankles).
 LEFT_RIGHT_SWAPS = ((13, 14), (15, 16), (25, 26), (27, 28))
 
@@ -41,7 +41,7 @@ class LifterError(MonoavatarError, ValueError):
 
 
 def _hip_midpoint(x: Tensor) -> Tensor:
-    return 0.5 * (x[..., _HIPS[0], :] + x[..., _HIPS[1], :])
+    return 0.5 * (x[..., HIP_LANDMARKS[0], :] + x[..., HIP_LANDMARKS[1], :])
 
 
 def hip_ray_coordinates(rays: Tensor) -> Tensor:
@@ -49,8 +49,7 @@ def hip_ray_coordinates(rays: Tensor) -> Tensor:
     (..., 33, 2) their image-plane coordinates in the hip-ray frame (the camera turned so its
     axis bisects the two hips' rays), minus the hips'."""
     unit = rays / rays.norm(dim=-1, keepdim=True)
-    turn = ray_rotations(_hip_midpoint(unit))  # (..., 3, 3)
-    local = unit @ turn  # rows: turnᵀ r
+    local = unit @ hip_ray_rotations(unit)  # rows: turnᵀ r
     planar = local[..., :2] / local[..., 2:3]
     return planar - _hip_midpoint(planar)[..., None, :]
 
@@ -59,8 +58,7 @@ def hip_ray_targets(points: Tensor) -> Tensor:
     """(..., 33, 3) camera-frame landmarks, metres → (..., 33, 3) the same relative to the hips'
     midpoint in the hip-ray frame of :func:`hip_ray_coordinates` (the lifter's target, before
     dividing by the height)."""
-    turn = ray_rotations(_hip_midpoint(points / points.norm(dim=-1, keepdim=True)))
-    return (points - _hip_midpoint(points)[..., None, :]) @ turn
+    return (points - _hip_midpoint(points)[..., None, :]) @ hip_ray_rotations(points)
 
 
 def window_indices(valid: np.ndarray, window: int) -> np.ndarray:
@@ -182,8 +180,7 @@ def lift_landmarks(net: LifterNetwork, keypoints: np.ndarray, K: np.ndarray,
     out = np.full((len(kp), LANDMARKS, 4), np.nan, dtype=np.float32)
     if not valid.any():
         return out
-    pixels = np.concatenate([np.nan_to_num(kp[..., :2]), np.ones((*kp.shape[:2], 1))], -1)
-    rays = torch.as_tensor(pixels @ np.linalg.inv(np.asarray(K, dtype=np.float64)).T)
+    rays = torch.as_tensor(camera_rays(np.nan_to_num(kp[..., :2]), K))
     planar = hip_ray_coordinates(rays).float()  # (N, 33, 2)
     idx = torch.as_tensor(window_indices(valid, net.settings.window))
     with torch.no_grad():
