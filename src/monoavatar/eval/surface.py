@@ -203,7 +203,9 @@ class TriangleIndex:
                 counts = np.fromiter((len(item) for item in lists), np.int64, len(lists))
                 total = int(counts.sum())
                 extra = members[np.fromiter(itertools.chain.from_iterable(lists), np.int64, total)]
-                keep = ~np.isin(pid, more)
+                searched = np.zeros(n, dtype=bool)
+                searched[more] = True
+                keep = ~searched[pid]
                 pid = np.concatenate([pid[keep], np.repeat(more, counts)])
                 fid = np.concatenate([fid[keep], extra])
             # The bin's bound R let in triangles whose own sphere is smaller: test each.
