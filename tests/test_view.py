@@ -186,9 +186,17 @@ def test_playing_a_motion_moves_the_avatar(browser: Browser, page_file: Path) ->
     waving = _figure(_show(browser, base + "&t=1.0"))
     assert browser.evaluate("document.body.dataset.clip") == "wave"
     assert (still ^ waving).sum() > 800
-    # the page plays by itself: two screenshots a moment apart differ
+    # the page plays by itself: its clock runs, and two screenshots 0.4 s of play apart differ
+    # (waiting on the page's clock, not the wall's: a loaded machine draws fewer frames)
     first = _figure(_show(browser, f"{page_file.as_uri()}#layout=orbit&floor=0&clip=walk"))
-    browser.evaluate("new Promise((r) => setTimeout(r, 400))")
+    start = float(browser.evaluate("document.body.dataset.played"))
+    played = browser.evaluate(
+        f"new Promise((done) => {{ const t0 = performance.now(); (function poll() {{"
+        f" const p = parseFloat(document.body.dataset.played);"
+        f" if (p >= {start} + 0.4 || performance.now() - t0 > 30000) done(p);"
+        f" else setTimeout(poll, 50); }})(); }})"
+    )
+    assert played >= start + 0.4
     assert (first ^ _figure(browser.screenshot())).sum() > 200
 
 

@@ -341,6 +341,7 @@
       const t = d > 0 ? ((state.time % d) + d) % d : 0;
       mixer.setTime(t);
       slider.value = String(t);
+      document.body.dataset.played = state.time.toFixed(3);  // seconds on the clock, unwrapped
       play.textContent = state.paused ? 'play' : 'pause';
       mesh.material = state.heat ? heat : (state.shading === 'albedo' ? albedo : shaded);
       if (proxy) {
