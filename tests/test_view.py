@@ -290,7 +290,8 @@ def test_a_paused_page_redraws_when_a_control_changes(browser: Browser, page_fil
     image = _show(browser, f"{page_file.as_uri()}#layout=orbit&paused=1&floor=0")
     browser.evaluate("(() => { const s = document.getElementById('heat'); s.checked = true;"
                      " s.dispatchEvent(new Event('change')); })()")  # fmt: skip
-    browser.evaluate("new Promise((r) => setTimeout(r, 500))")
+    # two animation frames: the page's own loop, registered first, has drawn once since
+    browser.evaluate("new Promise((r) => requestAnimationFrame(() => requestAnimationFrame(r)))")
     after = browser.screenshot()
     figure = _figure(image)
     blue = np.round(255 * error_to_rgb(np.zeros(1)))[0]
