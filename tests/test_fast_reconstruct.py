@@ -94,7 +94,9 @@ def test_refinement_puts_the_avatar_onto_the_frames(scene: Path, fast_out: Path,
     refined = json.loads((fast_out / "report.json").read_text())
     assert guess["timings"].get("refine", 0.0) < 0.5
     assert guess["fit"]["median_silhouette_iou"] > 0.35
-    assert refined["fit"]["median_silhouette_iou"] > guess["fit"]["median_silhouette_iou"] + 0.2
+    # the refinement covers most of what the guess misses
+    iou_guess, iou = guess["fit"]["median_silhouette_iou"], refined["fit"]["median_silhouette_iou"]
+    assert iou > 0.9 and 1.0 - iou < 0.6 * (1.0 - iou_guess)
     assert (np.nanmedian(refined["fit"]["keypoint_error_px"])
             < np.nanmedian(guess["fit"]["keypoint_error_px"]))  # fmt: skip
 

@@ -121,6 +121,29 @@ def test_files_and_description(turnaround):
     hips = [MEDIAPIPE_LANDMARKS.index("left_hip"), MEDIAPIPE_LANDMARKS.index("right_hip")]
     assert kp["keypoints"][[0, 2]][:, hips, 2].all()
     assert kp["keypoints"][[1, 3]][:, hips, 2].sum(axis=1).tolist() == [1, 1]
+    # the detector's view (no jitter at noise "none"): every landmark where it projects, the
+    # hidden ones (the nose seen from behind) with confidence 0.5
+    observed, exact = kp["observed"], kp["keypoints"]
+    np.testing.assert_array_equal(observed[..., :2], exact[..., :2])
+    np.testing.assert_array_equal(observed[..., 2], np.where(exact[..., 2] > 0, 1.0, 0.5))
+    assert observed[2, 0, 2] == 0.5 and 0 < observed[2, 0, 0] < 160
+
+
+def test_detector_keypoints_guess_hidden_landmarks_with_twice_the_error():
+    rng = np.random.default_rng(0)
+    exact = np.zeros((4000, 33, 3))
+    exact[..., :2] = rng.uniform(0, 500, (4000, 33, 2))
+    exact[:, :10, 2] = 1.0  # landmarks 0-9 visible, the rest hidden
+    known = np.ones(33, bool)
+    known[32] = False  # one the body model lacks
+    out = scene_mod.detector_keypoints(exact, 3.0, np.random.default_rng(1), known)
+    error = out[..., :2] - exact[..., :2]
+    assert error[:, :10].std() == pytest.approx(3.0, rel=0.02)
+    assert error[:, 10:32].std() == pytest.approx(3.0 * scene_mod.HIDDEN_JITTER, rel=0.02)
+    assert abs(error[:, :32].mean()) < 0.02  # unbiased
+    np.testing.assert_array_equal(out[:, :10, 2], 1.0)
+    np.testing.assert_array_equal(out[:, 10:32, 2], scene_mod.HIDDEN_CONFIDENCE)
+    np.testing.assert_array_equal(out[:, 32], 0.0)
 
 
 def test_clothing_is_real_displacement(anny_local, turnaround):

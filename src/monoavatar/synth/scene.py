@@ -7,7 +7,8 @@ Output folder::
     video.mp4                  the frames as a video (all kinds but photo)
     masks/000000.png ...       exact ground-truth person masks (0 / 255)
     keypoints.npz              keypoints (N, 33, 3): x px, y px, visibility (mediapipe order);
-                               keypoints_3d (N, 33, 3) world metres; observed (N, 33, 3) jittered
+                               keypoints_3d (N, 33, 3) world metres; observed (N, 33, 3) as a
+                               detector reports them (:func:`detector_keypoints`)
     camera.json                K, R, t, width, height (OpenCV convention, metres)
     gt/subject_000/canonical.obj (+ .mtl, .png)   clothed canonical mesh with UVs and texture
     gt/posed/000000.ply        posed ground-truth meshes (every ``posed_every``-th frame)
@@ -155,6 +156,32 @@ def degrade(image: np.ndarray, noise: dict[str, float], rng: np.random.Generator
         quality = [cv2.IMWRITE_JPEG_QUALITY, int(noise["jpeg"])]
         _, buf = cv2.imencode(".jpg", np.ascontiguousarray(out[..., ::-1]), quality)
         out = np.asarray(cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1], dtype=np.uint8).copy()
+    return out
+
+
+#: A 2D detector's error on landmarks it cannot see, in multiples of its error on the ones it
+#: sees, and the confidence it gives them (see docs/decisions.md, "Synthetic detector").
+HIDDEN_JITTER = 2.0
+HIDDEN_CONFIDENCE = 0.5
+
+
+def detector_keypoints(exact: np.ndarray, jitter_px: float, rng: np.random.Generator,
+                       known: np.ndarray | None = None) -> np.ndarray:  # fmt: skip
+    """What a 2D body-landmark detector such as mediapipe reports for the exact landmarks
+    ``exact`` (..., 33, 3: x px, y px, visibility 0/1): every landmark, seen or not, displaced
+    by Gaussian noise of σ = ``jitter_px`` pixels, ``HIDDEN_JITTER`` times that for hidden ones
+    (a detector guesses where a hidden limb is), with confidence 1 where visible and
+    ``HIDDEN_CONFIDENCE`` where hidden. Landmarks the body model lacks (``known`` (33,) bool
+    False) stay zero. Returns (..., 33, 3) float64."""
+    exact = np.asarray(exact, dtype=np.float64)
+    hidden = exact[..., 2] == 0
+    noise = rng.normal(0, jitter_px, exact[..., :2].shape)
+    noise[hidden] *= HIDDEN_JITTER
+    out = exact.copy()
+    out[..., :2] += noise
+    out[..., 2] = np.where(hidden, HIDDEN_CONFIDENCE, 1.0)
+    if known is not None:
+        out[..., ~np.asarray(known, dtype=bool), :] = 0.0
     return out
 
 
@@ -314,9 +341,8 @@ def _generate_into(
         keypoints_3d.append(r["keypoints_3d"])
         joints.append(r["joints"])
     kp = np.stack(keypoints)
-    observed = kp.copy()
-    observed[..., :2] += frame_rng.normal(0, noise["keypoint_jitter"], observed[..., :2].shape)
-    observed[kp[..., 2] == 0] = 0.0
+    observed = detector_keypoints(kp, noise["keypoint_jitter"], frame_rng,
+                                  body.keypoint_valid.numpy())  # fmt: skip
     atomic_write_npz(work / "keypoints.npz", keypoints=kp, keypoints_3d=np.stack(keypoints_3d),
                      observed=observed)  # fmt: skip
     camera.save_json(work / "camera.json")
@@ -367,7 +393,8 @@ def _generate_into(
             "video": "video.mp4" if config.kind != "photo" else None,
             "masks": "masks/%06d.png, exact ground truth, 255 = person",
             "keypoints": "keypoints.npz: keypoints (N,33,3) x px, y px, visibility; "
-            "keypoints_3d (N,33,3) world metres; observed (N,33,3) with jitter",
+            "keypoints_3d (N,33,3) world metres; observed (N,33,3) as a detector "
+            "reports them: jittered, hidden ones too (twice the jitter, confidence 0.5)",
             "camera": "camera.json",
             "canonical_mesh": "gt/subject_%03d/canonical.obj (+ .mtl, .png), metres",
             "posed_meshes": f"gt/posed/%06d.ply every {config.posed_every} frames, metres",
