@@ -98,15 +98,21 @@ def _joints_camera(body, shape, poses, trans, camera) -> np.ndarray:  # type: ig
 
 
 def _overrides(pairs: list[str]) -> dict[str, object]:
-    """``NAME=VALUE`` strings → TrackSettings fields, each VALUE parsed as its field's type."""
-    defaults = TrackSettings()
+    """``NAME=VALUE`` strings → TrackSettings fields (``pose.NAME``: its PoseSettings' fields),
+    each VALUE parsed as its field's type; the pose fields come back under ``"pose"`` as a dict."""
     out: dict[str, object] = {}
+    pose: dict[str, object] = {}
     for pair in pairs:
         name, _, value = pair.partition("=")
+        target, defaults = (pose, PoseSettings()) if name.startswith("pose.") else (
+            out, TrackSettings())  # fmt: skip
+        name = name.removeprefix("pose.")
         if not hasattr(defaults, name) or name == "pose":
-            raise SystemExit(f"--set: TrackSettings has no field {name!r}")
+            raise SystemExit(f"--set: {type(defaults).__name__} has no field {name!r}")
         kind = type(getattr(defaults, name))
-        out[name] = (value.lower() in ("1", "true", "yes")) if kind is bool else kind(value)
+        target[name] = (value.lower() in ("1", "true", "yes")) if kind is bool else kind(value)
+    if pose:
+        out["pose"] = pose
     return out
 
 
@@ -141,7 +147,9 @@ def run(scene: Path, variants: tuple[str, ...], lifter: Path | None = None,
                 obs_v = obs
             if obs_v.world_keypoints is not None:
                 extra = landmark_errors(obs_v.world_keypoints, truth_rel)
-            ts = replace(TrackSettings(pose=pose), **(overrides or {}))
+            extra_settings = dict(overrides or {})
+            pose_v = replace(pose, **extra_settings.pop("pose", {}))  # type: ignore[arg-type]
+            ts = replace(TrackSettings(pose=pose_v), **extra_settings)
             if world_weight is not None:
                 ts = replace(ts, world_weight=world_weight)
             motion = track_motion(body, obs_v, ts)
@@ -181,8 +189,9 @@ def main() -> None:
                         help="weight of the 3D landmark term of the default and lifter "
                         "variants (default: TrackSettings')")  # fmt: skip
     parser.add_argument("--set", nargs="+", default=[], metavar="NAME=VALUE",
-                        help="TrackSettings fields for the default and lifter variants, "
-                        "e.g. --set hips_weight=0.1 hips=false")  # fmt: skip
+                        help="TrackSettings fields for the default and lifter variants "
+                        "(pose.NAME: its PoseSettings'), e.g. --set hips_weight=0.1 "
+                        "hips=false pose.silhouette_points=600")  # fmt: skip
     args = parser.parse_args()
     rows = [r for scene in args.scenes
             for r in run(scene, tuple(args.variants), args.lifter, args.world_weight,

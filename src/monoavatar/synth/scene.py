@@ -331,8 +331,10 @@ def _generate_into(
         r = render_frame(body, subject, poses[i], translations[i], camera, sh_of_frame[i],
                          background)  # fmt: skip
         image = degrade(r["image"], noise, frame_rng)
-        Image.fromarray(image).save(work / "frames" / f"{i:06d}.png")
-        Image.fromarray((r["mask"] * 255).astype(np.uint8)).save(work / "masks" / f"{i:06d}.png")
+        # lossless either way; level 1 writes 4x faster than the default for 20 % more bytes
+        Image.fromarray(image).save(work / "frames" / f"{i:06d}.png", compress_level=1)
+        Image.fromarray((r["mask"] * 255).astype(np.uint8)).save(
+            work / "masks" / f"{i:06d}.png", compress_level=1)  # fmt: skip
         if i % config.posed_every == 0:
             write_ply(work / "gt" / "posed" / f"{i:06d}.ply", r["posed"],
                       subject.subdivision.faces.numpy())  # fmt: skip
