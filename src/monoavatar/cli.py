@@ -341,6 +341,11 @@ def _print_summary(report: Report, out: Path) -> None:
           + ("  ground_truth.npz" if report.ground_truth is not None else ""))
     print(f"  key-frames: {report.input.frames}  failed: {int(sum(fit.failed))}  "
           f"median silhouette IoU: {fit.median_silhouette_iou:.3f}")  # fmt: skip
+    if fit.median_face_error is not None and fit.face_error is not None:
+        found = sum(e is not None for e in fit.face_error)
+        print(f"  face: the face-mesh landmarks lie {100 * fit.median_face_error:.1f} % of the eye "
+              f"corners' distance from the avatar's face (median over {found} key-frames "
+              "with a face)")  # fmt: skip
     print(f"  height: {report.scale.height_m:.3f} m ({report.scale.note})")
     print("  time: " + ", ".join(f"{k} {v:.1f} s" for k, v in report.timings.items())
           + f"; total {report.seconds:.1f} s")  # fmt: skip

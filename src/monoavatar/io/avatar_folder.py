@@ -234,6 +234,11 @@ class FitSummary:
     failed: list[bool]
     median_silhouette_iou: float
     pose_energy: list[float]
+    #: per key-frame, the face's error against the detected face-mesh landmarks (median pixel
+    #: distance over the outer eye corners' distance; None where no face was detected), None
+    #: where no key-frame has a detected face
+    face_error: list[float | None] | None = None
+    median_face_error: float | None = None  # over the key-frames that have one
 
 
 @dataclass

@@ -6,8 +6,12 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+import torch
 
 from monoavatar.body import BodyModel
+from monoavatar.body.face_map import load_face_map
+from monoavatar.body.model import BodyModelError
+from monoavatar.fit.face import face_errors
 from monoavatar.fit.pose import PoseTrack, evaluate_fit, world_up
 from monoavatar.fit.shape import CanonicalShape
 from monoavatar.io.avatar_folder import (
@@ -23,7 +27,7 @@ from monoavatar.io.avatar_folder import (
 from monoavatar.io.reader import InputPath, input_label
 from monoavatar.io.viewer_page import keyframe_atlas
 from monoavatar.pipelines.previews import previews
-from monoavatar.pipelines.stages import Inputs, machine
+from monoavatar.pipelines.stages import Inputs, machine, posed_avatar
 from monoavatar.texture.backproject import UVTexture
 
 __all__ = ["avatar_folder", "reconstruction_report"]
@@ -41,6 +45,7 @@ def reconstruction_report(input_path: InputPath, body: BodyModel, inputs: Inputs
     good = ~track.failed
     kp_err, iou = evaluate_fit(body, shape.shape, track.poses, track.translations, obs,
                                offsets=shape.offsets)  # fmt: skip
+    face = _face_errors(body, track, shape, inputs)
     return Report(
         input=InputSummary(path=input_label(input_path), kind=inputs.kind, frames=len(obs),
                            frame_indices=np.asarray(obs.frame_indices).tolist(),
@@ -56,6 +61,10 @@ def reconstruction_report(input_path: InputPath, body: BodyModel, inputs: Inputs
             keypoint_error_px=kp_err.tolist(), silhouette_iou=iou.tolist(),
             failed=track.failed.tolist(), pose_energy=np.asarray(track.energy).tolist(),
             median_silhouette_iou=float(np.median(iou[good])) if good.any() else 0.0,
+            face_error=None if face is None else [None if np.isnan(e) else float(e)
+                                                  for e in face],
+            median_face_error=(None if face is None or np.isnan(face[good]).all()
+                               else float(np.nanmedian(face[good]))),
         ),  # fmt: skip
         texture=TextureSummary(albedo=texture.albedo, size=texture.size,
                                coverage=float(texture.coverage[texture.chart].mean())),
@@ -63,6 +72,27 @@ def reconstruction_report(input_path: InputPath, body: BodyModel, inputs: Inputs
         machine=machine(),
         timings=timings,
     )
+
+
+def _face_errors(body: BodyModel, track: PoseTrack, shape: CanonicalShape, inputs: Inputs
+                 ) -> np.ndarray | None:  # fmt: skip
+    """(K,) the fitted face's error against the face mesh's landmarks per key-frame
+    (:func:`monoavatar.fit.face.face_errors`; NaN where no face was detected), or None where
+    no frame has a face or the body model has no face map."""
+    detected = inputs.observations.face
+    frames = np.flatnonzero(np.isfinite(detected[..., :2]).all(axis=(1, 2)))
+    if len(frames) == 0:
+        return None
+    try:
+        face_map = load_face_map(body)
+    except BodyModelError:
+        return None
+    posed = posed_avatar(body, shape.shape, shape.offsets, track.poses[frames],
+                         track.translations[frames])  # fmt: skip
+    out = np.full(len(detected), np.nan)
+    out[frames] = face_errors(body, face_map, torch.as_tensor(posed), track.camera,
+                              detected[frames])  # fmt: skip
+    return out
 
 
 def avatar_folder(body: BodyModel, inputs: Inputs, track: PoseTrack, shape: CanonicalShape,

@@ -190,6 +190,9 @@ def _avatar_page(folder: Path, config: ViewConfig) -> ViewerPage:
                f"height {report.scale.height_m:.3f} m"
                + ("" if report.scale.known else " (scale unknown)"),
                f"median silhouette IoU {report.fit.median_silhouette_iou:.3f}"]  # fmt: skip
+    if report.fit.median_face_error is not None:
+        summary.append(f"face error {100 * report.fit.median_face_error:.1f} % of the eye "
+                       "distance")  # fmt: skip
     if report.ground_truth is not None:
         summary.append(f"surface error {report.ground_truth.surface_error_mm:.2f} mm")
     cam = p.camera
