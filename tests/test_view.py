@@ -186,9 +186,11 @@ def test_playing_a_motion_moves_the_avatar(browser: Browser, page_file: Path) ->
     waving = _figure(_show(browser, base + "&t=1.0"))
     assert browser.evaluate("document.body.dataset.clip") == "wave"
     assert (still ^ waving).sum() > 800
-    # the page plays by itself: its clock runs, and two screenshots 0.4 s of play apart differ
-    # (waiting on the page's clock, not the wall's: a loaded machine draws fewer frames)
-    first = _figure(_show(browser, f"{page_file.as_uri()}#layout=orbit&floor=0&clip=walk"))
+    # the page plays by itself: unpaused, its clock runs and each frame is drawn at the
+    # clock's time (the pixels of a time are checked above; comparing two screenshots of the
+    # walk instead is flaky: from the front, half a gait cycle apart, the walk looks alike)
+    _show(browser, f"{page_file.as_uri()}#layout=orbit&floor=0&clip=walk")
+    assert browser.evaluate("document.getElementById('play').textContent") == "pause"
     start = float(browser.evaluate("document.body.dataset.played"))
     played = browser.evaluate(
         f"new Promise((done) => {{ const t0 = performance.now(); (function poll() {{"
@@ -197,7 +199,6 @@ def test_playing_a_motion_moves_the_avatar(browser: Browser, page_file: Path) ->
         f" else setTimeout(poll, 50); }})(); }})"
     )
     assert played >= start + 0.4
-    assert (first ^ _figure(browser.screenshot())).sum() > 200
 
 
 @needs_chromium
