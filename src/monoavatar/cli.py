@@ -651,8 +651,8 @@ def _add_train(p: argparse.ArgumentParser) -> None:
                      "single-image network of 'monoavatar photo'), 'fast' (the few-frame "
                      "network of 'monoavatar reconstruct --fast'), 'lifter' (the 2D-to-3D "
                      "landmark lifter of 'monoavatar track') or 'face-map' (the face-mesh "
-                     "landmarks' places on the body). Every step resumes from what the "
-                     "output folder already holds.")
+                     "landmarks' places on the body). The networks' training resumes from "
+                     "what the output folder already holds.")
     parts = p.add_subparsers(dest="what", required=True, metavar="{photo,fast,lifter,face-map}")
     _add_train_photo(parts.add_parser("photo", help="the photo network (Paper E)"))
     _add_train_fast(parts.add_parser("fast", help="the few-frame network (Paper D)"))

@@ -11,6 +11,7 @@ anything, and the same command reproduces the shipped map.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -71,7 +72,7 @@ class FaceMapBuild:
     face_map: FaceMap
     spread_mm: np.ndarray
     snap_mm: np.ndarray
-    preview: np.ndarray  # (H, W, 3) uint8: the head-on render, detections red, map green
+    preview: np.ndarray  # (H, W, 3) uint8: the most frontal render, detections red, map green
 
 
 def _average_rest(body: BodyModel) -> np.ndarray:
@@ -116,7 +117,7 @@ def render_head(body: BodyModel, camera: PinholeCamera, texture: np.ndarray
     v = torch.as_tensor(_average_rest(body))
     frags = rasterize(v, body.faces, camera)
     sh = np.zeros((3, 9))
-    sh[:, 0] = 0.8 / 0.2820948  # ambient: a flat 0.8
+    sh[:, 0] = 0.8 * 2.0 * math.sqrt(math.pi)  # ambient: a flat 0.8 (Y00 = 1 / (2 √π))
     sh[:, 2] = 0.4  # more light from above
     image = render_textured(v, body.faces, frags, body.uv, body.face_uv, torch.as_tensor(texture),
                             sh=torch.as_tensor(sh), background=0.5)  # fmt: skip
@@ -172,7 +173,7 @@ def build_face_map(body: BodyModel, settings: FaceMapSettings | None = None) -> 
     faces = body.faces.numpy()
     texture = painted_face_texture(body, settings)
     detector = MediaPipeFaceMesh(max_faces=1)
-    points = []
+    points, views = [], []
     for yaw in settings.yaws_deg:
         camera = head_camera(body, yaw, settings)
         image, face_id = render_head(body, camera, texture)
@@ -182,8 +183,7 @@ def build_face_map(body: BodyModel, settings: FaceMapSettings | None = None) -> 
         pixels = np.asarray(found[0], np.float64)[:NUM_FACE_LANDMARKS, :2]
         points.append(back_project(vertices, faces, camera, face_id, pixels,
                                    settings.reach_px))  # fmt: skip
-        if yaw == 0:
-            preview, preview_camera, detected_pixels = image.copy(), camera, pixels
+        views.append((abs(yaw), image, camera, pixels))
     stack = np.stack(points)  # (views, 468, 3), NaN where a view missed the mesh
     mean = np.nanmean(stack, axis=0)
     if not np.isfinite(mean).all():
@@ -195,16 +195,10 @@ def build_face_map(body: BodyModel, settings: FaceMapSettings | None = None) -> 
     bary = np.clip(bary, 0.0, None)
     bary /= bary.sum(1, keepdims=True)
     face_map = FaceMap(np.asarray(triangles, np.int64), bary, len(vertices), len(faces))
-    preview_pixels: np.ndarray | None
-    if 0.0 not in settings.yaws_deg:
-        camera = head_camera(body, 0.0, settings)
-        preview, _ = render_head(body, camera, texture)
-        preview_camera, preview_pixels = camera, None
-    else:
-        preview_pixels = detected_pixels
-    _mark(preview, preview_camera.project(torch.as_tensor(closest))[0].numpy(), (40, 255, 40), 2)
-    if preview_pixels is not None:
-        _mark(preview, preview_pixels, (255, 40, 40), 1)
+    # the preview: the most frontal view, the map (green) under its detections (red)
+    _, preview, camera, pixels = min(views, key=lambda view: view[0])
+    _mark(preview, camera.project(torch.as_tensor(closest))[0].numpy(), (40, 255, 40), 2)
+    _mark(preview, pixels, (255, 40, 40), 1)
     return FaceMapBuild(face_map, 1000.0 * spread, 1000.0 * np.asarray(distance), preview)
 
 

@@ -331,7 +331,7 @@ def _generate_into(
         r = render_frame(body, subject, poses[i], translations[i], camera, sh_of_frame[i],
                          background)  # fmt: skip
         image = degrade(r["image"], noise, frame_rng)
-        # lossless either way; level 1 writes 4x faster than the default for 20 % more bytes
+        # lossless; the fastest compression level (docs/decisions.md, "Synthetic data")
         Image.fromarray(image).save(work / "frames" / f"{i:06d}.png", compress_level=1)
         Image.fromarray((r["mask"] * 255).astype(np.uint8)).save(
             work / "masks" / f"{i:06d}.png", compress_level=1)  # fmt: skip
@@ -396,7 +396,8 @@ def _generate_into(
             "masks": "masks/%06d.png, exact ground truth, 255 = person",
             "keypoints": "keypoints.npz: keypoints (N,33,3) x px, y px, visibility; "
             "keypoints_3d (N,33,3) world metres; observed (N,33,3) as a detector "
-            "reports them: jittered, hidden ones too (twice the jitter, confidence 0.5)",
+            f"reports them: jittered, hidden ones too ({HIDDEN_JITTER:g}x the jitter, "
+            f"confidence {HIDDEN_CONFIDENCE:g})",
             "camera": "camera.json",
             "canonical_mesh": "gt/subject_%03d/canonical.obj (+ .mtl, .png), metres",
             "posed_meshes": f"gt/posed/%06d.ply every {config.posed_every} frames, metres",
