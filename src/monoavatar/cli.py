@@ -344,8 +344,8 @@ def _print_summary(report: Report, out: Path) -> None:
     if fit.median_face_error is not None and fit.face_error is not None:
         found = sum(e is not None for e in fit.face_error)
         print(f"  face: the face-mesh landmarks lie {100 * fit.median_face_error:.1f} % of the eye "
-              f"corners' distance from the avatar's face (median over {found} key-frames "
-              "with a face)")  # fmt: skip
+              f"corners' distance from the avatar's face (median over {found} key-frame"
+              f"{'s' if found != 1 else ''} with a face)")  # fmt: skip
     print(f"  height: {report.scale.height_m:.3f} m ({report.scale.note})")
     print("  time: " + ", ".join(f"{k} {v:.1f} s" for k, v in report.timings.items())
           + f"; total {report.seconds:.1f} s")  # fmt: skip
