@@ -19,7 +19,7 @@ from monoavatar.synth.scene import SynthConfig
 
 # The suite's definition, pinned: changing any of it changes the figures and needs a new
 # SUITE_VERSION (and this list updated with it).
-PINNED_V1 = [
+PINNED_SUBJECTS = [
     ("minimal-s3", "minimal", 3, "minimal"),
     ("minimal-s7", "minimal", 7, "minimal"),
     ("minimal-s19", "minimal", 19, "minimal"),
@@ -34,8 +34,8 @@ PINNED_V1 = [
 
 def test_full_suite_is_pinned_and_versioned():
     suite = get_suite()
-    assert suite.version == SUITE_VERSION == 1
-    assert [(s.name, s.category, s.seed, s.clothing) for s in suite.subjects] == PINNED_V1
+    assert suite.version == SUITE_VERSION == 2  # v1's subjects, synth format 2
+    assert [(s.name, s.category, s.seed, s.clothing) for s in suite.subjects] == PINNED_SUBJECTS
     for s in suite.subjects:
         assert (s.frames, s.width, s.height, s.keyframes, s.texture_size) == (
             120, 540, 540, 30, 1024)  # fmt: skip
@@ -126,6 +126,12 @@ def test_scene_is_reused_when_valid_and_replaced_when_not(tiny_scene, anny_local
     assert not scene_is_valid(stale, subject)
     assert ensure_scene(subject, tmp_path, body=anny_local) == stale
     assert scene_is_valid(stale, subject)
+
+    # so is one that an older generator made with the same settings
+    info = json.loads((stale / "scene.json").read_text())
+    info["format"] = "monoavatar-synth-1"
+    (stale / "scene.json").write_text(json.dumps(info))
+    assert not scene_is_valid(stale, subject)
 
 
 def test_a_foreign_folder_is_not_deleted(tmp_path):

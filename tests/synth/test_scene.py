@@ -1,6 +1,7 @@
 """Synthetic scenes: determinism, exact masks, keypoints on the right body parts, files, errors."""
 
 import json
+from dataclasses import replace
 
 import av
 import numpy as np
@@ -214,3 +215,33 @@ def test_gait_moves_along_an_oblique_path_in_view_with_camera_frame_joints(anny_
         mask = np.asarray(Image.open(out / "masks" / f"{i:06d}.png")) > 0
         assert mask.sum() > 200
         assert not (mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any())
+
+
+def test_painted_eyes_sit_on_the_subjects_own_eyes(anny_local):
+    """A short subject's eyes (white and pupil) are painted where its own eye landmarks are,
+    not where an average body's would be (3 cm higher and more)."""
+    from monoavatar.body.subdivide import subdivide
+    from monoavatar.synth.subjects import build_subject, sample_subject
+
+    spec = sample_subject(np.random.default_rng(5), anny_local, "minimal")
+    shape = spec.shape.copy()
+    shape[4] = -0.35  # short
+    subject = build_subject(anny_local, replace(spec, shape=shape), texture_size=512)
+    sub = subdivide(anny_local.faces, anny_local.uv, anny_local.face_uv, anny_local.skin_weights)
+    with torch.no_grad():
+        own = anny_local.keypoints(anny_local.rest_shape(subject.shape)[0])[0].numpy()
+        average = anny_local.keypoints(anny_local.rest_shape(anny_local.default_shape())[0])[0]
+        average = average.numpy()
+        fine = sub.apply(anny_local.rest_shape(subject.shape)[0])[0].numpy()
+    faces, face_uv, uv = sub.faces.numpy(), sub.face_uv.numpy(), sub.uv.numpy()
+    centroids = fine[faces].mean(axis=1)
+    tex = subject.texture
+    for side in ("left", "right"):
+        eye = own[MEDIAPIPE_LANDMARKS.index(f"{side}_eye")]
+        assert np.linalg.norm(eye - average[MEDIAPIPE_LANDMARKS.index(f"{side}_eye")]) > 0.03
+        nearest = np.argsort(np.linalg.norm(centroids - eye, axis=1))[:3]
+        texel = (uv[face_uv[nearest]].mean(axis=1) * tex.shape[0]).astype(int)
+        colour = tex[texel[:, 1], texel[:, 0]]
+        eye_colours = np.array([[0.92, 0.92, 0.9], [0.25, 0.18, 0.12]])  # white, pupil
+        gap = np.abs(colour[:, None] - eye_colours[None]).max(axis=2).min(axis=1)
+        assert (gap < 0.01).all(), colour

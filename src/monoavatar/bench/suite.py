@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from monoavatar.core.errors import MonoavatarError
-from monoavatar.synth.options import CLOTHING
+from monoavatar.synth.options import CLOTHING, FORMAT
 
 if TYPE_CHECKING:
     from monoavatar.body import BodyModel
@@ -42,9 +42,10 @@ __all__ = [
     "scene_is_valid",
 ]
 
-SUITE_VERSION = 1
+SUITE_VERSION = 2
 """Version of the suite; bump it whenever a subject, frame count, size or metric setting
-changes, so that figures of different versions are never compared as if alike."""
+changes, so that figures of different versions are never compared as if alike (2: the synth
+scenes of :data:`~monoavatar.synth.options.FORMAT` 2, faces painted on each subject's face)."""
 
 CATEGORIES: dict[str, str] = {
     "minimal": "minimal clothing (like D-FAUST)",
@@ -245,7 +246,7 @@ def scene_is_valid(folder: Path, subject: BenchSubject) -> bool:
         info = json.loads((folder / "scene.json").read_text())
     except (OSError, ValueError):
         return False
-    if not str(info.get("format", "")).startswith("monoavatar-synth"):
+    if info.get("format") != FORMAT:
         return False
     if info.get("config") != subject.synth_settings():
         return False

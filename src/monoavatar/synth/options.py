@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+FORMAT = "monoavatar-synth-2"
+"""The ``format`` a scene's ``scene.json`` records; bumped whenever the same settings make a
+different scene (2: each subject's face features painted on its own face)."""
 KINDS: tuple[str, ...] = ("turnaround", "motion", "walk", "jog", "photo")
 CLOTHING: tuple[str, ...] = (
     "minimal", "tight", "tshirt-shorts", "longsleeve-trousers", "loose", "skirt",

@@ -39,7 +39,7 @@ from monoavatar.core.errors import MonoavatarError
 from monoavatar.core.files import atomic_write_npz, staged_folder
 from monoavatar.io.export_mesh import write_mp4, write_obj, write_ply
 from monoavatar.render import rasterize, render_textured, sample_sh_lighting
-from monoavatar.synth.options import BACKGROUNDS, CLOTHING, KINDS, NOISE_LEVELS
+from monoavatar.synth.options import BACKGROUNDS, CLOTHING, FORMAT, KINDS, NOISE_LEVELS
 from monoavatar.synth.subjects import Subject, build_subject, sample_subject
 
 _LEFT_HIP = MEDIAPIPE_LANDMARKS.index("left_hip")
@@ -366,7 +366,7 @@ def _generate_into(
     )
     seconds = time.perf_counter() - start
     scene = {
-        "format": "monoavatar-synth-1",
+        "format": FORMAT,
         "config": asdict(config),
         "background": bg_kind,
         "noise": noise,

@@ -253,9 +253,10 @@ def paint_texture(
         160 * p[:, 2]
     )
     colour = np.tile(spec.skin, (len(p), 1)) * noise_small[:, None]
-    # face features from the landmark regressor of the average-shaped body
+    # face features where the subject's own face landmarks are
     with torch.no_grad():
-        kp = body.keypoints(body.rest_shape(body.default_shape(1))[0])[0].double().numpy()
+        shape = torch.as_tensor(spec.shape, dtype=body.dtype)[None]
+        kp = body.keypoints(body.rest_shape(shape)[0])[0].double().numpy()
     from monoavatar.body import MEDIAPIPE_LANDMARKS as L
 
     def near(name: str, radius: float, scale: tuple[float, float, float] = (1, 1, 1)) -> np.ndarray:
