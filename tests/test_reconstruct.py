@@ -256,6 +256,17 @@ def test_texture_option_reaches_the_config(tmp_path: Path) -> None:
         parser.parse_args(["reconstruct", "video.mp4", "-o", "o", "--texture", "mean"])
 
 
+def test_face_weight_option_reaches_the_config(tmp_path: Path) -> None:
+    from monoavatar.cli import CliError, _config, build_parser
+
+    parser = build_parser(only="reconstruct")
+    base = ["reconstruct", "video.mp4", "-o", str(tmp_path / "o")]
+    assert _config(parser.parse_args(base)).shape.w_face == 0.0  # off by default
+    assert _config(parser.parse_args([*base, "--face-weight", "0.5"])).shape.w_face == 0.5
+    with pytest.raises(CliError, match="w_face must be >= 0"):
+        _config(parser.parse_args([*base, "--face-weight", "-1"]))
+
+
 def test_large_video_is_reconstructed_at_max_side_with_its_focal_scaled(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
     import monoavatar.perception as perception

@@ -213,7 +213,8 @@ def _config(args: argparse.Namespace, **options: Any) -> ReconstructConfig:
             flow_rounds=getattr(args, "flow_rounds", base.flow_rounds),
             progress=not args.quiet,
             pose=replace(base.pose, height=args.height),
-            shape=replace(base.shape, fit_offsets=not getattr(args, "no_offsets", False)),
+            shape=replace(base.shape, fit_offsets=not getattr(args, "no_offsets", False),
+                          w_face=getattr(args, "face_weight", base.shape.w_face)),
             texture=replace(base.texture, size=getattr(args, "texture_size", base.texture.size),
                             workers=workers,
                             method=getattr(args, "texture_method", base.texture.method)),
@@ -224,6 +225,7 @@ def _config(args: argparse.Namespace, **options: Any) -> ReconstructConfig:
 
 
 def _add_reconstruct(p: argparse.ArgumentParser) -> None:
+    from monoavatar.fit.shape import ShapeSettings
     from monoavatar.pipelines.fast import FAST_MAX_FRAMES, FastConfig
     from monoavatar.pipelines.reconstruct import ReconstructConfig
     from monoavatar.pipelines.stages import POSES
@@ -253,6 +255,11 @@ def _add_reconstruct(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-offsets", action="store_true",
                    help="fit the body model's shape only, without per-vertex offsets "
                    "(the baseline of the benchmark)")  # fmt: skip
+    _option(p, "--face-weight", ShapeSettings, "w_face", "weight of the face term (Paper C): "
+            "the face-mesh landmarks detected in the key-frames pull the avatar's face onto "
+            "their rays (0 turns it off; faces are found only where they are large enough, "
+            "about 25 pixels between the eyes' outer corners)", type=float,
+            metavar="W")  # fmt: skip
     _option(p, "--refine-rounds", ReconstructConfig, "refine_rounds", "rounds of pose "
             "re-fitting with the consensus shape by keypoints and silhouette, each followed by "
             "the shape again, before the texture", type=int, metavar="R")  # fmt: skip

@@ -16,7 +16,7 @@ direction n, Eq. 3.11), canonical frame, metres.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import cv2
 import numpy as np
@@ -86,6 +86,20 @@ class CanonicalRays:
         outside the observed silhouette)."""
         v = vertices[self.vertex_ids] - self.closest_points()
         return np.asarray(np.einsum("nc,nc->n", v, self.plane_normal))
+
+    @classmethod
+    def empty(cls) -> CanonicalRays:
+        """No rays."""
+        z3 = np.zeros((0, 3))
+        return cls(np.zeros(0, np.int64), z3, z3, z3, np.zeros(0, np.int64), np.zeros(0))
+
+    @classmethod
+    def concatenate(cls, parts: Sequence[CanonicalRays]) -> CanonicalRays:
+        """The rays of all ``parts``, in order."""
+        if not parts:
+            return cls.empty()
+        names = [f.name for f in fields(cls)]
+        return cls(*(np.concatenate([getattr(p, n) for p in parts]) for n in names))
 
     def select(self, keep: np.ndarray) -> CanonicalRays:
         """The subset of rays given by a boolean mask or index array."""
@@ -271,7 +285,8 @@ def frame_shift(
     return np.asarray(coef @ axes)
 
 
-def _pixel_directions(camera: PinholeCamera, k_inv: np.ndarray, points: np.ndarray) -> np.ndarray:
+def pixel_directions(camera: PinholeCamera, k_inv: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(N, 2) pixels → (N, 3) unit world directions of their camera rays (``k_inv`` = K⁻¹)."""
     homo = np.hstack([points, np.ones((len(points), 1))])
     d = homo @ k_inv.T @ camera.R  # Rᵀ d_cam for row vectors
     return np.asarray(d / np.linalg.norm(d, axis=1, keepdims=True))
@@ -361,7 +376,7 @@ def silhouette_correspondences(
             if len(si) == 0:
                 continue
             vids = ids[ci]
-            rays = _pixel_directions(camera, k_inv, s.points[si])
+            rays = pixel_directions(camera, k_inv, s.points[si])
             planes = _silhouette_planes(camera, s.points[si], s.normals[si])
             if shift_sigma is not None:
                 shifts[f] = frame_shift(
@@ -372,8 +387,6 @@ def silhouette_correspondences(
             m, n, p = unpose_lines(body, centre - shifts[f], rays, planes, vids, tf_all[f], corr)
             parts.append((vids, m, n, p, np.full(len(vids), f, np.int64), dist))
     if not parts:
-        z3 = np.zeros((0, 3))
-        empty = CanonicalRays(np.zeros(0, np.int64), z3, z3, z3, np.zeros(0, np.int64), np.zeros(0))
-        return empty, shifts
+        return CanonicalRays.empty(), shifts
     rays_all = CanonicalRays(*(np.concatenate([p[i] for p in parts]) for i in range(6)))
     return rays_all, shifts

@@ -19,6 +19,11 @@ fitted to all frames' rays at once:
 - ``E_var`` (Eq. B.10): ``Σ τ_i |d_i − d_ref,i|²``: offsets stay small (``d_ref = 0``) or,
   with ``reinit``, near their value at the last correspondence step;
 - ``E_sym`` (Eq. B.11): ``Σ |diag(−1, 1, 1) d_i − d_mirror(i)|²``;
+- ``E_face`` (Eq. C.5–C.7, with ``face`` landmarks and ``w_face > 0``): Geman-McClure
+  distance between each detected face-mesh landmark's unposed camera ray and its fixed point
+  on the body's surface (:class:`~monoavatar.body.face_map.FaceMap`,
+  :func:`monoavatar.fit.face.face_rays`), each landmark weighted by its confidence; normalised
+  like ``E_data`` (``w_face`` times the confidence-weighted mean over the face rays, times V);
 - ``E_rigid`` (not in the dissertation): ``Σ_edges τ_ij |d_i − d_j|²`` over the face, hands
   and feet, whose silhouettes say little about their shape: they keep the body model's shape
   and move as a whole (e.g. a foot follows the sole's rays down a longer leg instead of being
@@ -52,15 +57,19 @@ import torch
 from torch import Tensor
 
 from monoavatar.body import REGIONS, BodyModel, lbs
+from monoavatar.body.face_map import FaceMap
 from monoavatar.core.camera import PinholeCamera
 from monoavatar.core.errors import MonoavatarError
 from monoavatar.core.geometry import vertex_normals
+from monoavatar.core.landmarks import NUM_FACE_LANDMARKS
 from monoavatar.core.threads import torch_threads
 from monoavatar.fit import shape_solver as solver
 from monoavatar.fit.energies import geman_mcclure
+from monoavatar.fit.face import face_rays
 from monoavatar.fit.laplacian import edge_laplacian, symmetry_operators, uniform_laplacian
 from monoavatar.fit.rays import (
     BoundarySamples,
+    CanonicalRays,
     silhouette_boundary,
     silhouette_correspondences,
 )
@@ -106,6 +115,11 @@ class ShapeSettings:
             offsets of regions that silhouettes barely constrain (face, hands, feet) nearly
             constant, so that these parts move as a whole instead of stretching; not decayed.
         rigid_regions: (region name, τ) pairs of the rigidity term; unlisted regions get 0.
+        w_face: weight of E_face against E_data (0: no face term).
+        face_min_facing: landmarks whose face point turns further away from the camera
+            (cosine of its normal with the direction to the camera) are left out.
+        face_max_turn: degrees; frames whose face turns further from the camera give no
+            face rays.
         shape_prior: weight of ``|β − β_init|²`` in the β steps.
         shape_iterations: Gauss-Newton iterations on β per round.
         irls_iterations: reweighted sparse solves of the offsets per round.
@@ -152,6 +166,9 @@ class ShapeSettings:
     body_regions: tuple[tuple[str, float], ...] = ()
     w_rigid: float = 100.0
     rigid_regions: tuple[tuple[str, float], ...] = (("face", 1.0), ("hands", 1.0), ("feet", 0.02))
+    w_face: float = 0.0
+    face_min_facing: float = 0.2
+    face_max_turn: float = 180.0
     shape_prior: float = 1e-3
     shape_iterations: int = 3
     irls_iterations: int = 1
@@ -190,10 +207,16 @@ class ShapeSettings:
             "w_symmetry": self.w_symmetry,
             "shape_prior": self.shape_prior,
             "w_rigid": self.w_rigid,
+            "w_face": self.w_face,
         }
         for name, value in weights.items():
             if value < 0:
                 raise ShapeFitError(f"{name} must be >= 0, got {value}")
+        if not 0 < self.face_max_turn <= 180 or not -1 <= self.face_min_facing < 1:
+            raise ShapeFitError(
+                f"face_max_turn must lie in (0, 180] degrees and face_min_facing in [-1, 1), "
+                f"got {self.face_max_turn}, {self.face_min_facing}"
+            )
         if not 0 < self.decay <= 1:
             raise ShapeFitError(f"decay must lie in (0, 1], got {self.decay}")
         for attr in ("laplacian_regions", "body_regions", "rigid_regions"):
@@ -220,6 +243,9 @@ class RoundDiagnostics:
         rays: number of matched rays.
         median_distance_mm: median ray-to-vertex distance after the round, millimetres.
         inlier_fraction: fraction of rays closer than ``sigma`` after the round.
+        face_rays: number of face rays (0 without the face term).
+        face_median_mm: median face-point-to-ray distance after the round, millimetres
+            (None without face rays).
         data, laplacian, body, symmetry: unweighted energy terms after the round
             (data normalised as in the module docstring; the others in m²).
         seconds: wall time of the round.
@@ -235,6 +261,8 @@ class RoundDiagnostics:
     body: float
     symmetry: float
     seconds: float
+    face_rays: int = 0
+    face_median_mm: float | None = None
 
 
 @dataclass(frozen=True)
@@ -324,6 +352,8 @@ def fit_consensus_shape(
     *,
     transforms: Tensor | None = None,
     offsets_init: Tensor | np.ndarray | None = None,
+    face: np.ndarray | None = None,
+    face_map: FaceMap | None = None,
     progress: bool = False,
 ) -> CanonicalShape:
     """Fit the consensus shape (β and offsets D) of a person to the silhouettes of F frames
@@ -343,6 +373,9 @@ def fit_consensus_shape(
         offsets_init: optional (V, 3) offsets D to start from, metres; they are also the
             reference of E_var and E_lp (the fit stays near them where the rays say little),
             e.g. a learned prediction (``reconstruct --fast``). None: start from D = 0.
+        face: (F, 468, 3) face-mesh landmarks per frame (x px, y px, confidence; NaN rows
+            where no face was found) for E_face, with ``face_map`` the landmarks' points on
+            the body; used when ``settings.w_face > 0``.
         progress: print one line per round.
     Returns:
         :class:`CanonicalShape`.
@@ -353,7 +386,8 @@ def fit_consensus_shape(
     with torch_threads(settings.threads):
         return _fit(
             body, masks, camera, poses, translations, shape_init, settings, transforms,
-            offsets_init, progress,
+            offsets_init, face if face_map is not None and settings.w_face > 0 else None,
+            face_map, progress,
         )  # fmt: skip
 
 
@@ -367,6 +401,8 @@ def _fit(
     settings: ShapeSettings,
     transforms: Tensor | None,
     offsets_init: Tensor | np.ndarray | None,
+    face: np.ndarray | None,
+    face_map: FaceMap | None,
     progress: bool,
 ) -> CanonicalShape:
     t_start = time.perf_counter()
@@ -375,6 +411,9 @@ def _fit(
     trans_t = torch.as_tensor(translations, dtype=torch.float64)
     beta_t = torch.as_tensor(shape_init, dtype=torch.float64)
     _check_inputs(body, masks, camera, poses_t, trans_t, beta_t, transforms)
+    expected = (masks.shape[0], NUM_FACE_LANDMARKS, 3)
+    if face is not None and face.shape != expected:
+        raise ShapeFitError(f"face: expected {expected}, got {face.shape}")
 
     frames = _key_frames(masks.shape[0], settings.max_frames)
     samples: list[BoundarySamples] = [
@@ -447,12 +486,26 @@ def _fit(
             chunk=settings.chunk,
         )
         shift_total += shifts
-        stage = "shape" if (r < settings.shape_rounds or not settings.fit_offsets) else "offsets"
-        if len(rays) == 0:
+        n_sil = len(rays)
+        if n_sil == 0:
             raise ShapeFitError("no silhouette ray matched the model: check poses and masks")
         proj = solver.projectors(rays, settings.data_term)
+        scale: float | np.ndarray = V / n_sil
+        n_face = 0
+        if face is not None and face_map is not None:
+            tf_face = tf.clone()
+            tf_face[:, :, :3, 3] += torch.as_tensor(shifts, dtype=tf.dtype)[:, None]
+            frays, conf = face_rays(body, face_map, canonical, tf_face, face[frames], camera,
+                                    rotations=rotations, min_facing=settings.face_min_facing,
+                                    max_turn_deg=settings.face_max_turn)
+            n_face = len(frays)
+            if n_face:
+                rays = CanonicalRays.concatenate([rays, frays])
+                proj = np.concatenate([proj, solver.projectors(frays, "line")])
+                scale = np.concatenate([np.full(n_sil, V / n_sil),
+                                        settings.w_face * V * conf / conf.sum()])
+        stage = "shape" if (r < settings.shape_rounds or not settings.fit_offsets) else "offsets"
         anchor = rays.closest_points()
-        scale = V / len(rays)
         if settings.fit_shape:
             beta = solver.shape_step(
                 problem, beta, beta_init, offsets, rays, proj, anchor, sigma, scale, settings
@@ -492,14 +545,16 @@ def _fit(
         diag = RoundDiagnostics(
             round=r,
             stage=stage,
-            rays=len(rays),
-            median_distance_mm=float(np.sqrt(np.median(d2)) * 1000),
-            inlier_fraction=float(np.mean(d2 < sigma * sigma)),
-            data=solver.data_energy(d2, sigma, scale),
+            rays=n_sil,
+            median_distance_mm=float(np.sqrt(np.median(d2[:n_sil])) * 1000),
+            inlier_fraction=float(np.mean(d2[:n_sil] < sigma * sigma)),
+            data=solver.data_energy(d2[:n_sil], sigma, V / n_sil),
             laplacian=float(np.sum(problem.tau_lp[:, None] * lap**2)),
             body=float(np.sum(problem.tau_var[:, None] * offsets**2)),
             symmetry=float(np.sum(sym**2)),
             seconds=time.perf_counter() - t0,
+            face_rays=n_face,
+            face_median_mm=float(np.sqrt(np.median(d2[n_sil:])) * 1000) if n_face else None,
         )
         diagnostics.append(diag)
         if progress:

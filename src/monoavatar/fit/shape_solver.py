@@ -38,7 +38,7 @@ def line_data_energy(vertices: Tensor, moment: Tensor, direction: Tensor, sigma:
     return geman_mcclure((r * r).sum(-1), sigma).sum()
 
 
-def robust_weights(d2: np.ndarray, sigma: float) -> np.ndarray:
+def robust_weights(d2: np.ndarray, sigma: float | np.ndarray) -> np.ndarray:
     """IRLS weights of Geman-McClure, ``dρ/d(r²) = σ⁴ / (σ² + r²)²``."""
     s2 = sigma * sigma
     return np.asarray((s2 / (s2 + d2)) ** 2)
@@ -125,9 +125,11 @@ def rest_jacobian(body: BodyModel, beta: np.ndarray, step: float = 1e-3) -> np.n
     return np.stack([(v[2 * k] - v[2 * k + 1]) / (2 * step) for k in range(S)], axis=-1)
 
 
-def data_energy(d2: np.ndarray, sigma: float, scale: float) -> float:
-    s2 = sigma * sigma
-    return float(scale * np.sum(s2 * d2 / (s2 + d2)))
+def data_energy(d2: np.ndarray, sigma: float | np.ndarray, scale: float | np.ndarray) -> float:
+    """``Σ_c s_c ρ_σc(d_c)``: the robust data term of squared distances ``d2`` (N,), with a
+    Geman-McClure scale and a weight that are scalars or per ray (N,)."""
+    s2 = np.asarray(sigma) ** 2
+    return float(np.sum(scale * s2 * d2 / (s2 + d2)))
 
 
 def shape_step(
@@ -138,8 +140,8 @@ def shape_step(
     rays: CanonicalRays,
     proj: np.ndarray,
     anchor: np.ndarray,
-    sigma: float,
-    scale: float,
+    sigma: float | np.ndarray,
+    scale: float | np.ndarray,
     settings: ShapeSettings,
 ) -> np.ndarray:
     """Levenberg-Marquardt iterations on β with fixed offsets and correspondences."""
@@ -214,8 +216,8 @@ def offset_step(
     rays: CanonicalRays,
     proj: np.ndarray,
     anchor: np.ndarray,
-    sigma: float,
-    scale: float,
+    sigma: float | np.ndarray,
+    scale: float | np.ndarray,
     weights: tuple[float, float, float],
     normals: np.ndarray | None,
     irls_iterations: int,

@@ -225,6 +225,10 @@ class ScaleSummary:
     note: str
 
 
+MIN_FACE_FRAMES = 3
+"""Key-frames with a detected face below which no median face error is reported."""
+
+
 @dataclass
 class FitSummary:
     """Per key-frame (K,) fit measures of the final poses and avatar."""
@@ -238,7 +242,9 @@ class FitSummary:
     #: distance over the outer eye corners' distance; None where no face was detected), None
     #: where no key-frame has a detected face
     face_error: list[float | None] | None = None
-    median_face_error: float | None = None  # over the key-frames that have one
+    #: the median of ``face_error`` over the good key-frames that have one, where there are
+    #: at least :data:`MIN_FACE_FRAMES` (fewer small faces say little)
+    median_face_error: float | None = None
 
 
 @dataclass

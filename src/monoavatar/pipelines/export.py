@@ -16,6 +16,7 @@ from monoavatar.fit.pose import PoseTrack, evaluate_fit, world_up
 from monoavatar.fit.shape import CanonicalShape
 from monoavatar.io.avatar_folder import (
     KEYFRAMES_FILE,
+    MIN_FACE_FRAMES,
     AvatarFolder,
     AvatarParams,
     FitSummary,
@@ -63,7 +64,8 @@ def reconstruction_report(input_path: InputPath, body: BodyModel, inputs: Inputs
             median_silhouette_iou=float(np.median(iou[good])) if good.any() else 0.0,
             face_error=None if face is None else [None if np.isnan(e) else float(e)
                                                   for e in face],
-            median_face_error=(None if face is None or np.isnan(face[good]).all()
+            median_face_error=(None if face is None
+                               or np.isfinite(face[good]).sum() < MIN_FACE_FRAMES
                                else float(np.nanmedian(face[good]))),
         ),  # fmt: skip
         texture=TextureSummary(albedo=texture.albedo, size=texture.size,

@@ -31,6 +31,8 @@ import numpy as np
 import torch
 
 from monoavatar.body import BodyModel, load_body_model
+from monoavatar.body.face_map import load_face_map
+from monoavatar.body.model import BodyModelError
 from monoavatar.core.errors import InputError, InputFormatError, InputWarning, MonoavatarError
 from monoavatar.datasets.synth_scene import SynthGroundTruth
 from monoavatar.fit.flow_refine import FlowRefineSettings, refine_poses_with_flow
@@ -390,7 +392,8 @@ def shifted_track(track: PoseTrack, shape: CanonicalShape) -> PoseTrack:
 
 def shape_stage(body: BodyModel, inputs: Inputs, track: PoseTrack, settings: ShapeSettings
                 ) -> tuple[PoseTrack, CanonicalShape]:  # fmt: skip
-    """Sec. B.3.3 on the key-frames whose pose fit did not fail: the consensus shape, and the
+    """Sec. B.3.3 on the key-frames whose pose fit did not fail: the consensus shape (with the
+    face term of Sec. C.3.2 where ``settings.w_face > 0`` and faces were detected), and the
     track shifted by the shape fit's translation corrections (:func:`shifted_track`)."""
     good = np.flatnonzero(~track.failed)
     if len(good) < 2:
@@ -398,9 +401,18 @@ def shape_stage(body: BodyModel, inputs: Inputs, track: PoseTrack, settings: Sha
             f"only {len(good)} key-frames have a usable pose fit; need at least 2 "
             "(is the person fully visible, turning in place?)"
         )
+    face = inputs.observations.face[good]
+    face_map = None
+    if settings.w_face > 0 and np.isfinite(face[..., :2]).all(axis=(1, 2)).any():
+        try:
+            face_map = load_face_map(body)
+        except BodyModelError:
+            warnings.warn(f"no face-mesh landmark map for the {body.identity} body model: "
+                          "the face term is off", stacklevel=2)  # fmt: skip
     shape = fit_consensus_shape(
         body, inputs.observations.masks[good], track.camera, track.poses[good],
-        track.translations[good], track.shape, settings, progress=False,
+        track.translations[good], track.shape, settings, face=face, face_map=face_map,
+        progress=False,
     )  # fmt: skip
     return shifted_track(track, shape), shape
 
