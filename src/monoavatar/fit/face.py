@@ -92,11 +92,11 @@ def face_rays(body: BodyModel, face_map: FaceMap, canonical: Tensor, transforms:
     corners = faces[torch.as_tensor(face_map.triangles)].numpy()  # (468, 3)
     dominant = corners[np.arange(len(corners)), np.argmax(face_map.bary, axis=1)]
     canon = canonical.detach().double()
-    delta = (face_map.points(canon, faces).numpy() - canon.numpy()[dominant])  # (468, 3)
+    delta = face_map.points(canon, faces).numpy() - canon.numpy()[dominant]  # (468, 3)
     k_inv = np.linalg.inv(camera.K)
     weights = body.skin_weights.double()
     tf_all = transforms.detach().double()
-    parts: list[tuple[np.ndarray, ...]] = []
+    parts: list[CanonicalRays] = []
     conf_parts: list[np.ndarray] = []
     for f in np.flatnonzero(np.isfinite(detected[..., :2]).all(axis=(1, 2))):
         rest = canon
@@ -131,9 +131,7 @@ def face_rays(body: BodyModel, face_map: FaceMap, canonical: Tensor, transforms:
         with torch.no_grad():
             projected, _ = camera.project(torch.as_tensor(points[keep]))
         dist = np.linalg.norm(projected.double().numpy() - pix, axis=1)
-        parts.append((dominant[keep], m, n, p, np.full(len(keep), f, np.int64), dist))
+        parts.append(CanonicalRays(dominant[keep], m, n, p, np.full(len(keep), f, np.int64),
+                                   dist))  # fmt: skip
         conf_parts.append(detected[f, keep, 2])
-    if not parts:
-        return CanonicalRays.empty(), np.zeros(0)
-    rays = CanonicalRays(*(np.concatenate([q[i] for q in parts]) for i in range(6)))
-    return rays, np.concatenate(conf_parts)
+    return CanonicalRays.concatenate(parts), np.concatenate([np.zeros(0), *conf_parts])

@@ -349,7 +349,7 @@ def silhouette_correspondences(
     shifts = np.zeros((n_frames, 3))
     k_inv = np.linalg.inv(camera.K)
     tf_all = transforms.detach().cpu().double().numpy()
-    parts: list[tuple[np.ndarray, ...]] = []
+    parts: list[CanonicalRays] = []
     for start in range(0, n_frames, chunk):
         stop = min(start + chunk, n_frames)
         tf = transforms[start:stop].to(canonical.dtype)
@@ -385,8 +385,5 @@ def silhouette_correspondences(
             corr = None if correctives is None else correctives[k]
             # posing then shifting by Δt equals unposing rays shifted by −Δt
             m, n, p = unpose_lines(body, centre - shifts[f], rays, planes, vids, tf_all[f], corr)
-            parts.append((vids, m, n, p, np.full(len(vids), f, np.int64), dist))
-    if not parts:
-        return CanonicalRays.empty(), shifts
-    rays_all = CanonicalRays(*(np.concatenate([p[i] for p in parts]) for i in range(6)))
-    return rays_all, shifts
+            parts.append(CanonicalRays(vids, m, n, p, np.full(len(vids), f, np.int64), dist))
+    return CanonicalRays.concatenate(parts), shifts

@@ -82,7 +82,7 @@ def _face_errors(body: BodyModel, track: PoseTrack, shape: CanonicalShape, input
     (:func:`monoavatar.fit.face.face_errors`; NaN where no face was detected), or None where
     no frame has a face or the body model has no face map."""
     detected = inputs.observations.face
-    frames = np.flatnonzero(np.isfinite(detected[..., :2]).all(axis=(1, 2)))
+    frames = np.flatnonzero(inputs.observations.face_found)
     if len(frames) == 0:
         return None
     try:

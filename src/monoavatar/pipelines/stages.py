@@ -403,7 +403,7 @@ def shape_stage(body: BodyModel, inputs: Inputs, track: PoseTrack, settings: Sha
         )
     face = inputs.observations.face[good]
     face_map = None
-    if settings.w_face > 0 and np.isfinite(face[..., :2]).all(axis=(1, 2)).any():
+    if settings.w_face > 0 and inputs.observations.face_found[good].any():
         try:
             face_map = load_face_map(body)
         except BodyModelError:
