@@ -12,7 +12,12 @@ vertex-to-surface distance after pose and scale alignment, mm):
 * ``exact_clothing``: garments and hair only, on the subject's six-phenotype body;
 * ``exact_local``: the local shape changes only, no garments or hair;
 * ``coverage_mean_thick``: where the subject is clothed, exactly, but with the mean thickness of
-  its clothing everywhere (what a garment-coverage classifier could give at best).
+  its clothing everywhere (what a garment-coverage classifier could give at best);
+* ``mean``: the mean target of ``--prior-subjects`` training subjects (what a network that
+  learns nothing from its input answers);
+* ``class_means``: per texel, the mean target of those training subjects *over the texels of
+  the same garment class* (skin, top, bottom, hair, shoes), chosen by the subject's exact
+  classes: what a network that only recognised each texel's garment class could give at best.
 
 Every oracle map is made as the training targets are (``learn.uvmaps.displacement_targets``)
 against the subject's true six-phenotype body, then added to the *fitted* body, so the fitter's
@@ -38,15 +43,48 @@ from monoavatar.core.geometry import vertex_normals
 from monoavatar.learn.photo_data import PhotoDataSettings, base_fine_vertices, render_photo
 from monoavatar.learn.photo_model import load_photo_network
 from monoavatar.learn.shards import iter_seeds
-from monoavatar.learn.uvmaps import DISPLACEMENT_SCALE, displacement_targets, sample_vertex_values
+from monoavatar.learn.uvmaps import (
+    DISPLACEMENT_SCALE,
+    displacement_targets,
+    rasterise_vertex_values,
+    sample_vertex_values,
+)
 from monoavatar.pipelines.photo import PhotoConfig, photo
 
-ORACLES = ("body", "maps", "exact", "exact_clothing", "exact_local", "coverage_mean_thick")
+ORACLES = ("body", "maps", "exact", "exact_clothing", "exact_local", "coverage_mean_thick",
+           "mean", "class_means")
+CLASSES = 5  # synth.subjects.Subject.garment: skin, top, bottom, hair, shoes
 #: Displacements (m) above this count as clothed for ``coverage_mean_thick``.
 CLOTHED = 0.004
 
 
-def _score(scene, result, body, local_body, layout) -> dict[str, float]:  # type: ignore[no-untyped-def]  # noqa: E501
+def class_priors(local_body, body, layout, count: int) -> tuple[np.ndarray, np.ndarray]:  # type: ignore[no-untyped-def]  # noqa: E501
+    """The mean displacement map (S, S, 3) of ``count`` training subjects (seeds of the train
+    split, drawn as ``render_photo`` draws them) and per garment class (CLASSES, S, S, 3),
+    both in DISPLACEMENT_SCALE units; a class never seen at a texel falls back to the mean."""
+    from monoavatar.synth.subjects import build_subject, sample_subject
+
+    S = layout.size
+    total = np.zeros((S, S, 3))
+    per_class = np.zeros((CLASSES, S, S, 3))
+    weight = np.zeros((CLASSES, S, S, 1))
+    for seed in iter_seeds("train", count):
+        spec = sample_subject(np.random.default_rng([seed, 5]), local_body)
+        subject = build_subject(local_body, spec, 64)
+        base = base_fine_vertices(body, layout, np.asarray(spec.shape[:6]))
+        disp = displacement_targets(layout, base, subject.rest_vertices.double())[..., :3]
+        onehot = rasterise_vertex_values(layout, np.eye(CLASSES)[subject.garment])
+        total += disp
+        for k in range(CLASSES):
+            per_class[k] += onehot[..., k : k + 1] * disp
+            weight[k] += onehot[..., k : k + 1]
+    mean = total / count
+    seen = weight > 0.5
+    per_class = np.where(seen, per_class / np.maximum(weight, 1e-9), mean[None])
+    return mean.astype(np.float32), per_class.astype(np.float32)
+
+
+def _score(scene, result, body, local_body, layout, priors, oracles) -> dict[str, float]:  # type: ignore[no-untyped-def]  # noqa: E501
     """Each oracle's surface error (mm) for one photo's ``scene`` and its ``photo`` result."""
     faces = layout.subdivision.faces.numpy()
     truth = scene.subject.rest_vertices.double().numpy()
@@ -72,16 +110,27 @@ def _score(scene, result, body, local_body, layout) -> dict[str, float]:  # type
         fine_local = layout.subdivision.apply(rest_local)[0].double()
     clothed = thickness > CLOTHED
     flat = (clothed * thickness[clothed].mean())[:, None] * normals
-    return {"body": error(fitted), "maps": error(result.vertices),
-            "exact": error(exact_maps(scene.subject.rest_vertices.double())),
-            "exact_clothing": error(exact_maps(true_base + thickness[:, None] * normals)),
-            "exact_local": error(exact_maps(fine_local)),
-            "coverage_mean_thick": error(exact_maps(true_base + flat))}  # fmt: skip
+    mean, per_class = priors
+    onehot = rasterise_vertex_values(layout, np.eye(CLASSES)[scene.subject.garment])
+    by_class = np.einsum("hwk,khwc->hwc", onehot, per_class)
+
+    def prior_maps(disp: np.ndarray) -> np.ndarray:
+        return fitted + sample_vertex_values(layout, disp * DISPLACEMENT_SCALE)
+    vertices = {
+        "body": lambda: fitted, "maps": lambda: result.vertices,
+        "exact": lambda: exact_maps(scene.subject.rest_vertices.double()),
+        "exact_clothing": lambda: exact_maps(true_base + thickness[:, None] * normals),
+        "exact_local": lambda: exact_maps(fine_local),
+        "coverage_mean_thick": lambda: exact_maps(true_base + flat),
+        "mean": lambda: prior_maps(mean), "class_means": lambda: prior_maps(by_class)}
+    return {name: error(vertices[name]()) for name in oracles}
 
 
-def run(out: Path, split: str, count: int) -> list[dict]:
+def run(out: Path, split: str, count: int, prior_subjects: int, oracles: list[str]
+        ) -> list[dict]:  # fmt: skip
     local_body, body = load_body_model("anny-local"), load_body_model("anny")
     layout = load_photo_network(body, None).layout
+    priors = class_priors(local_body, body, layout, prior_subjects)
     rows = []
     for seed in iter_seeds(split, count):
         scene = render_photo(local_body, seed, PhotoDataSettings())
@@ -98,7 +147,7 @@ def run(out: Path, split: str, count: int) -> list[dict]:
             print(json.dumps({"seed": seed, "failed": str(error)}), flush=True)
             continue
         row = {"seed": seed, "clothing": scene.subject.spec.clothing,
-               **_score(scene, result, body, local_body, layout)}  # fmt: skip
+               **_score(scene, result, body, local_body, layout, priors, oracles)}  # fmt: skip
         print(json.dumps({k: round(v, 2) if isinstance(v, float) else v
                           for k, v in row.items()}), flush=True)  # fmt: skip
         rows.append(row)
@@ -111,12 +160,16 @@ def main() -> None:
     parser.add_argument("--split", choices=("train", "val"), default="val",
                         help="photos to score (never the sealed test split)")  # fmt: skip
     parser.add_argument("--photos", type=int, default=12)
+    parser.add_argument("--prior-subjects", type=int, default=300,
+                        help="training subjects the mean and class-mean maps are taken over")
+    parser.add_argument("--oracles", nargs="+", choices=ORACLES, default=list(ORACLES),
+                        help="which columns to score (each costs a surface metric per photo)")
     args = parser.parse_args()
-    rows = run(args.out, args.split, args.photos)
-    mean = {k: round(float(np.mean([r[k] for r in rows])), 2) for k in ORACLES}
-    print("| photos | " + " | ".join(ORACLES) + " |")
-    print("|---|" + "---|" * len(ORACLES))
-    print(f"| {len(rows)} | " + " | ".join(f"{mean[k]:.2f}" for k in ORACLES) + " |")
+    rows = run(args.out, args.split, args.photos, args.prior_subjects, args.oracles)
+    mean = {k: round(float(np.mean([r[k] for r in rows])), 2) for k in args.oracles}
+    print("| photos | " + " | ".join(args.oracles) + " |")
+    print("|---|" + "---|" * len(args.oracles))
+    print(f"| {len(rows)} | " + " | ".join(f"{mean[k]:.2f}" for k in args.oracles) + " |")
     (args.out / "oracles.json").write_text(json.dumps({"rows": rows, "mean": mean}, indent=1))
 
 

@@ -784,7 +784,7 @@ def _add_train_photo(p: argparse.ArgumentParser) -> None:
         "Measure the "
         "single-image fitter's error on synthetic photos, make training photos with exact UV "
         "maps (the partial texture built from poses perturbed as the fitter errs), train the "
-        "photo network (U-Net, MS-DSSIM + L1 + a small PatchGAN term) and write "
+        "photo network (U-Net, MS-DSSIM + L1, a PatchGAN term with --gan-weight) and write "
         "OUT/photo.safetensors (use it with 'monoavatar photo --weights', or copy it to "
         "monoavatar/learn/weights/). Every step resumes from what OUT already holds.")
     p.add_argument("-o", "--output", required=True, type=Path, help="working folder")
@@ -808,6 +808,9 @@ def _add_train_photo(p: argparse.ArgumentParser) -> None:
     _option(p, "--tangential-scale", PhotoNetworkSettings, "tangential_scale", "predict the "
             "displacement along the body's normal frame, tangential components times this in "
             "the losses (none: canonical x, y, z)", type=float)  # fmt: skip
+    p.add_argument("--classes", action="store_true",
+                   help="the network also recognises each texel's garment class and starts "
+                        "from that class's mean maps (default: the overall mean maps)")
     _option(p, "--workers", PhotoTrainConfig, "workers", "processes making the data", type=int)
     _option(p, "--max-minutes", PhotoTrainConfig, "max_minutes", "stop training after this "
             "many minutes (resume by running the command again)", type=float)  # fmt: skip
@@ -824,7 +827,8 @@ def _run_train(args: argparse.Namespace) -> int:
     config.train = replace(config.train, steps=args.steps, batch=args.batch, seed=args.seed,
                            gan_weight=args.gan_weight, dssim_weight=args.dssim_weight,
                            device=args.device)  # fmt: skip
-    config.network = replace(config.network, tangential_scale=args.tangential_scale)
+    config.network = replace(config.network, tangential_scale=args.tangential_scale,
+                             classes=args.classes)  # fmt: skip
     result = train_photo(args.output, config)
     state = "finished" if result.train.finished else "stopped (run again to resume)"
     print(f"training {state} after {result.train.steps_done} steps; weights: {result.weights}")

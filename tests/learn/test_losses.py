@@ -18,6 +18,7 @@ from monoavatar.learn.losses import (
     LossInputError,
     lsgan_discriminator_loss,
     lsgan_generator_loss,
+    masked_cross_entropy,
     masked_l1,
     ms_dssim,
     ms_ssim,
@@ -202,3 +203,32 @@ def test_inputs_that_do_not_fit_are_refused() -> None:
         ms_ssim(x, y, scales=6)
     with pytest.raises(LossInputError, match="mask must be"):
         masked_l1(x, y, torch.ones(1, 1, 16, 32))
+
+
+def test_masked_cross_entropy_equals_pytorchs_on_hard_labels() -> None:
+    """One-hot targets: the per-pixel mean of F.cross_entropy over the weighted pixels."""
+    gen = torch.Generator().manual_seed(4)
+    logits = torch.randn(2, 5, 6, 7, generator=gen, dtype=torch.float64)
+    labels = torch.randint(0, 5, (2, 6, 7), generator=gen)
+    onehot = torch.nn.functional.one_hot(labels, 5).permute(0, 3, 1, 2).double()
+    mask = (torch.rand(2, 1, 6, 7, generator=gen) > 0.3).double()
+    per_pixel = torch.nn.functional.cross_entropy(logits, labels, reduction="none")
+    expected = (per_pixel * mask[:, 0]).sum() / mask.sum()
+    assert torch.allclose(masked_cross_entropy(logits, onehot, mask), expected)
+
+
+def test_masked_cross_entropy_closed_forms() -> None:
+    """Equal logits cost log K whatever the target; a soft target (p, 1 − p) against the
+    logits (log p, log(1 − p)) costs its entropy; an empty mask costs nothing."""
+    k = 5
+    uniform = torch.zeros(1, k, 3, 3, dtype=torch.float64)
+    target = torch.zeros(1, k, 3, 3, dtype=torch.float64)
+    target[:, 2] = 1.0
+    ones = torch.ones(1, 1, 3, 3, dtype=torch.float64)
+    assert torch.allclose(masked_cross_entropy(uniform, target, ones),
+                          torch.tensor(np.log(k), dtype=torch.float64))  # fmt: skip
+    p = 0.3
+    soft = torch.tensor([p, 1 - p], dtype=torch.float64).view(1, 2, 1, 1).expand(1, 2, 3, 3)
+    entropy = -(p * np.log(p) + (1 - p) * np.log(1 - p))
+    assert abs(float(masked_cross_entropy(soft.log(), soft, ones)) - entropy) < 1e-12
+    assert float(masked_cross_entropy(uniform, target, 0 * ones)) == 0.0

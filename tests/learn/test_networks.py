@@ -14,6 +14,7 @@ from torch.nn import functional as F
 from monoavatar.core.errors import MonoavatarError
 from monoavatar.core.threads import torch_threads
 from monoavatar.learn.networks import (
+    ClassMixture,
     NetworkConfigError,
     NetworkInputError,
     PatchDiscriminator,
@@ -141,3 +142,51 @@ def test_unet_learns_one_example_by_heart() -> None:
         opt.step()
         losses.append(loss.item())
     assert losses[-1] < losses[0] / 10
+
+
+class _Fixed(nn.Module):
+    """A 'network' that answers a fixed output whatever its input."""
+
+    def __init__(self, out: torch.Tensor) -> None:
+        super().__init__()
+        self.out = nn.Parameter(out.clone())
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.out.expand(x.shape[0], *self.out.shape[1:])
+
+
+def test_class_mixture_answers_the_recognised_classs_means() -> None:
+    """Logits sure of class j at a pixel and no residual give M_j there; equal logits give the
+    classes' average; the residual adds scale · r; the logits come out after the maps."""
+    k, c, h, w = 3, 2, 4, 5
+    means = torch.randn(k, c, h, w, generator=torch.Generator().manual_seed(0))
+    out = torch.zeros(1, c + k, h, w)
+    out[0, c + 1, :, :3] = 50.0  # class 1 on the left, equal logits on the right
+    net = ClassMixture(_Fixed(out), means, scale=0.5)
+    y = net(torch.zeros(2, 1, h, w))
+    assert y.shape == (2, c + k, h, w)
+    assert torch.allclose(y[:, :c, :, :3], means[1, :, :, :3].expand(2, c, h, 3), atol=1e-6)
+    assert torch.allclose(y[:, :c, :, 3:], means[:, :, :, 3:].mean(0).expand(2, c, h, 2),
+                          atol=1e-6)  # fmt: skip
+    assert torch.equal(y[:, c:], out.expand(2, -1, -1, -1)[:, c:])
+    out2 = out.clone()
+    out2[0, :c] = 2.0
+    y2 = ClassMixture(_Fixed(out2), means, scale=0.5)(torch.zeros(1, 1, h, w))
+    assert torch.allclose(y2[:, :c] - y[:1, :c], torch.ones(1, c, h, w), atol=1e-6)
+
+
+def test_class_mixture_gradient_reaches_the_logits_and_checks_shapes() -> None:
+    k, c, h, w = 2, 1, 2, 2
+    means = torch.stack([torch.zeros(c, h, w), torch.ones(c, h, w)])
+    fixed = _Fixed(torch.zeros(1, c + k, h, w))
+    net = ClassMixture(fixed, means)
+    net(torch.zeros(1, 1, h, w))[:, :c].sum().backward()
+    grad = fixed.out.grad
+    assert grad is not None
+    # d/dl1 of softmax(l)_1 at l = 0 is 1/4 per pixel; d/dl0 is −1/4
+    assert torch.allclose(grad[0, c + 1], torch.full((h, w), 0.25))
+    assert torch.allclose(grad[0, c], torch.full((h, w), -0.25))
+    with pytest.raises(NetworkInputError, match="does not match"):
+        ClassMixture(_Fixed(torch.zeros(1, c + k + 1, h, w)), means)(torch.zeros(1, 1, h, w))
+    with pytest.raises(NetworkConfigError):
+        ClassMixture(fixed, torch.zeros(c, h, w))

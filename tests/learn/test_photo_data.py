@@ -10,16 +10,20 @@ import torch
 from monoavatar.body import lbs
 from monoavatar.core.camera import PinholeCamera
 from monoavatar.learn.photo_data import (
+    CLASS_CHANNELS,
     INPUT_CHANNELS,
     TARGET_CHANNELS,
     FitError,
+    PhotoDataset,
     PhotoDataSettings,
+    PhotoSample,
     network_input,
     partial_texture,
     photo_sample,
     placed_body,
     render_photo,
     template_positions,
+    write_shard,
 )
 from monoavatar.learn.uvmaps import uv_layout
 from monoavatar.render import rasterize, render_textured
@@ -154,3 +158,46 @@ def test_sample_targets_and_weights(anny_local, anny32, layout) -> None:  # type
     along = (disp * normals).sum(0)[layout.chart]
     assert np.mean(along > -0.05) > 0.8
     assert 0.2 < sample.fill < 1.0
+
+    # garment classes: probabilities on the chart, none off it; hair on the head (the
+    # template's highest texels), skin or shoes at the lowest
+    classes = sample.classes
+    assert classes.shape == (CLASS_CHANNELS, 128, 128)
+    np.testing.assert_allclose(classes.sum(0)[layout.chart], 1.0, atol=1e-5)
+    assert np.all(classes[:, ~layout.chart] == 0)
+    height = template[..., 1][layout.chart]
+    label = classes.argmax(0)[layout.chart]
+    assert np.median(height[label == 3]) > np.quantile(height, 0.9)
+    assert np.all(np.isin(label[height < np.quantile(height, 0.01)], [0, 4]))
+
+
+def _sample(target: np.ndarray, classes: np.ndarray, seed: int) -> PhotoSample:
+    size = target.shape[-1]
+    return PhotoSample(np.zeros((INPUT_CHANNELS, size, size), np.float32), target,
+                       np.ones((1, size, size), np.float32), classes, seed, 0.0, 0.5, 0.5)
+
+
+def test_class_means_by_hand(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """Two shards, three samples of 2×2 texels: each class's mean target per texel is the
+    class-probability-weighted mean over the samples; a class that covers a texel in less
+    than half a sample falls back to the overall mean; with_classes appends the classes."""
+    k, size = CLASS_CHANNELS, 2
+    targets = [np.full((6, size, size), v, np.float32) for v in (1.0, 2.0, 4.0)]
+    classes = [np.zeros((k, size, size), np.float32) for _ in range(3)]
+    classes[0][0], classes[1][0] = 1.0, 1.0  # samples 0 and 1: skin everywhere
+    classes[2][1] = 1.0  # sample 2: top everywhere ...
+    classes[2][1, 0, 0], classes[2][0, 0, 0] = 0.75, 0.25  # ... but a quarter skin at (0, 0)
+    write_shard(tmp_path / "train-0000.npz", [_sample(targets[0], classes[0], 0)])
+    write_shard(tmp_path / "train-0001.npz", [_sample(targets[i], classes[i], i)
+                                              for i in (1, 2)])  # fmt: skip
+    data = PhotoDataset(sorted(tmp_path.glob("train-*.npz")))
+    means = data.class_means().numpy()
+    assert means.shape == (k, 6, size, size)
+    assert np.allclose(means[0, :, 0, 1], 1.5)  # skin: samples 0 and 1
+    assert np.allclose(means[0, :, 0, 0], (1.0 + 2.0 + 0.25 * 4.0) / 2.25)
+    assert np.allclose(means[1], 4.0)  # top: sample 2 only (0.75 of it at (0, 0))
+    overall = (1.0 + 2.0 + 4.0) / 3
+    assert np.allclose(means[2:], overall, atol=1e-3)  # never seen: the overall mean
+    assert data[2]["target"].shape == (6, size, size)
+    with_classes = PhotoDataset(sorted(tmp_path.glob("train-*.npz")), with_classes=True)
+    assert torch.equal(with_classes[2]["target"][6:], torch.from_numpy(classes[2]))

@@ -38,6 +38,8 @@ def test_metadata_round_trip() -> None:
     assert PhotoNetworkSettings.from_metadata(SMALL.metadata()) == SMALL
     normal = replace(SMALL, tangential_scale=0.25)
     assert PhotoNetworkSettings.from_metadata(normal.metadata()) == normal
+    classes = replace(SMALL, classes=True)
+    assert PhotoNetworkSettings.from_metadata(classes.metadata()) == classes
     with pytest.raises(PhotoModelError, match="architecture"):
         PhotoNetworkSettings.from_metadata({"format": "x"})
 
@@ -77,6 +79,26 @@ def test_normal_frame_predictions_come_back_canonical(anny32, tmp_path: Path
     chart = network.layout.chart
     expected = 0.4 * frames[chart, 0] + 0.2 * frames[chart, 1]
     np.testing.assert_allclose(maps[chart, :3], expected, atol=1e-5)
+
+
+def test_a_class_network_predicts_its_recognised_classs_maps(anny32, tmp_path: Path
+                                                             ) -> None:  # type: ignore[no-untyped-def]  # fmt: skip
+    """Class priors M_k (k + 1 everywhere) and a network whose head answers class 2 (its bias):
+    predict() gives M_2's six channels, not the logits; the priors load back."""
+    settings = replace(SMALL, classes=True)
+    means = torch.arange(1.0, 6.0).view(5, 1, 1, 1).expand(5, 6, 64, 64).clone()
+    net = settings.build(means)
+    for p in net.net.parameters():
+        torch.nn.init.zeros_(p)
+    with torch.no_grad():
+        net.net.head.bias[6 + 2] = 30.0
+    path = tmp_path / "classes.safetensors"
+    export_generator(net, path, settings.metadata())
+    network = load_photo_network(anny32, path)
+    assert torch.equal(network.generator.state_dict()["class_means"], means)
+    maps = network.predict(np.zeros((64, 64, 3), np.float32), np.zeros((64, 64), bool))
+    assert maps.shape == (64, 64, 6)
+    np.testing.assert_allclose(maps[network.layout.chart], 3.0, atol=1e-5)
 
 
 def test_shipped_weights_load(anny32) -> None:  # type: ignore[no-untyped-def]

@@ -47,6 +47,7 @@ __all__ = [
     "LossInputError",
     "lsgan_discriminator_loss",
     "lsgan_generator_loss",
+    "masked_cross_entropy",
     "masked_l1",
     "ms_dssim",
     "ms_ssim",
@@ -300,6 +301,24 @@ def masked_l1(x: Tensor, y: Tensor, mask: Tensor) -> Tensor:
     _check_pair(x, y, mask)
     total = (mask * (x - y).abs()).sum()
     return total / (mask.sum() * x.shape[1]).clamp_min(_TINY)
+
+
+def masked_cross_entropy(logits: Tensor, probabilities: Tensor, mask: Tensor) -> Tensor:
+    """Weighted mean cross-entropy of per-pixel class ``logits`` against target class
+    ``probabilities``: ``Σ m · (−Σ_k p_k log softmax(l)_k) / Σ m`` over the whole batch.
+
+    Args:
+        logits: (B, K, H, W) unnormalised class scores.
+        probabilities: (B, K, H, W) target class probabilities (one-hot, or soft where a
+            pixel straddles classes), summing to 1 over K where the mask is not 0.
+        mask: (B, 1, H, W) weights in [0, 1].
+
+    Returns:
+        A scalar, nats; 0 if the mask is all 0.
+    """
+    _check_pair(logits, probabilities, mask)
+    nll = -(probabilities * torch.log_softmax(logits, dim=1)).sum(dim=1, keepdim=True)
+    return (mask * nll).sum() / mask.sum().clamp_min(_TINY)
 
 
 def lsgan_discriminator_loss(real_logits: Tensor, fake_logits: Tensor) -> Tensor:

@@ -33,6 +33,7 @@ from torch.nn import functional as F
 from monoavatar.core.errors import MonoavatarError
 
 __all__ = [
+    "ClassMixture",
     "NetworkConfigError",
     "NetworkInputError",
     "PatchDiscriminator",
@@ -270,3 +271,48 @@ class ResidualOverMean(nn.Module):
             raise NetworkInputError(f"the network's output {tuple(out.shape[1:])} does not "
                                     f"match the mean {tuple(mean.shape)}")  # fmt: skip
         return mean + self.scale * out
+
+
+class ClassMixture(nn.Module):
+    """A generator that recognises each pixel's class and answers that class's mean target:
+    ``net(x)`` gives C residual channels ``r`` and K class logits ``l`` per pixel, and
+
+    ``y = Σ_k softmax(l)_k · M_k + scale · r``
+
+    with ``M_k`` (C, H, W) the per-pixel mean target over the training pixels of class k (the
+    buffer ``class_means`` (K, C, H, W), saved with the weights). The output is ``y`` followed
+    by the logits, (B, C + K, H, W), so that a loss can also be put on the classes
+    (:class:`~monoavatar.learn.training.TrainSettings` ``class_channels``).
+
+    Args:
+        net: (B, C_in, H, W) → (B, C + K, H, W).
+        class_means: (K, C, H, W) the per-class prior.
+        scale: the residual's scale at initialisation.
+    """
+
+    def __init__(self, net: nn.Module, class_means: Tensor, scale: float = 0.1) -> None:
+        super().__init__()
+        if class_means.ndim != 4:
+            raise NetworkConfigError(f"class_means must be (K, C, H, W), got "
+                                     f"{tuple(class_means.shape)}")  # fmt: skip
+        self.net = net
+        self.scale = float(scale)
+        self.register_buffer("class_means", class_means.detach().clone().float())
+
+    @property
+    def classes(self) -> int:
+        """K."""
+        return int(cast(Tensor, self.class_means).shape[0])
+
+    def forward(self, x: Tensor) -> Tensor:
+        """(B, C_in, H, W) -> (B, C + K, H, W): the maps, then the class logits."""
+        out: Tensor = self.net(x)
+        means = cast(Tensor, self.class_means)
+        k, c = means.shape[:2]
+        if out.shape[1] != c + k or out.shape[2:] != means.shape[2:]:
+            raise NetworkInputError(f"the network's output {tuple(out.shape[1:])} does not "
+                                    f"match {c} maps and {k} classes of size "
+                                    f"{tuple(means.shape[2:])}")  # fmt: skip
+        residual, logits = out[:, :c], out[:, c:]
+        prior = torch.einsum("bkhw,kchw->bchw", torch.softmax(logits, dim=1), means)
+        return torch.cat([prior + self.scale * residual, logits], dim=1)

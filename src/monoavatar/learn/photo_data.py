@@ -14,6 +14,10 @@ random background, with sensor noise. From it:
 * **target** (6, S, S): the vector displacement from the body of the subject's six phenotypes
   to its clothed surface (divided by :data:`~monoavatar.learn.uvmaps.DISPLACEMENT_SCALE`) and
   the clothed surface's normals, canonical frame (:func:`displacement_targets`);
+* **classes** (5, S, S): the garment class of each texel (skin, top, bottom, hair, shoes;
+  :data:`~monoavatar.synth.subjects.GARMENTS`), as probabilities (one-hot, soft where a texel's
+  triangle straddles two classes), for a network that recognises garments
+  (:class:`~monoavatar.learn.networks.ClassMixture`);
 * **weight** (1, S, S): 1 on the chart texels.
 
 Subjects, poses, lighting and photos are drawn from one seed per sample, so a dataset is
@@ -43,7 +47,7 @@ from monoavatar.learn.uvmaps import (
 )
 from monoavatar.synth.options import BACKGROUNDS, NOISE_LEVELS
 from monoavatar.synth.scene import degrade, make_background, render_frame
-from monoavatar.synth.subjects import Subject, build_subject, sample_subject
+from monoavatar.synth.subjects import GARMENTS, Subject, build_subject, sample_subject
 from monoavatar.texture.backproject import TextureSettings, build_texture
 
 __all__ = [
@@ -60,6 +64,7 @@ __all__ = [
 
 INPUT_CHANNELS = 7
 TARGET_CHANNELS = 6
+CLASS_CHANNELS = len(GARMENTS)
 PHENOTYPES = 6
 
 
@@ -259,10 +264,18 @@ class PhotoSample:
     input: np.ndarray  # (7, S, S) float32
     target: np.ndarray  # (6, S, S) float32
     weight: np.ndarray  # (1, S, S) float32
+    classes: np.ndarray  # (5, S, S) float32 garment-class probabilities
     seed: int
     yaw: float  # radians
     fill: float  # person height / image height
     visible_fraction: float  # fraction of the chart texels seen
+
+
+def garment_classes(layout: UVLayout, garment: np.ndarray) -> np.ndarray:
+    """(S, S, K) float32 class probabilities of each texel from per-fine-vertex garment
+    indices (V_f,) into :data:`~monoavatar.synth.subjects.GARMENTS` (K classes): the one-hot
+    vectors interpolated barycentrically, 0 outside the charts."""
+    return rasterise_vertex_values(layout, np.eye(CLASS_CHANNELS)[np.asarray(garment)])
 
 
 def base_fine_vertices(fit_body: BodyModel, layout: UVLayout, phenotypes: np.ndarray | Tensor
@@ -314,6 +327,7 @@ def photo_sample(local_body: BodyModel, fit_body: BodyModel, layout: UVLayout,
                                       scene.mask, scene.camera, layout.size)  # fmt: skip
     base = base_fine_vertices(fit_body, layout, true_shape)
     target = displacement_targets(layout, base, scene.subject.rest_vertices.double())
+    classes = garment_classes(layout, scene.subject.garment)
     rows = np.flatnonzero(scene.mask.any(axis=1))
     fill = float(np.ptp(rows) + 1) / scene.mask.shape[0] if len(rows) else 0.0
     chart = layout.chart
@@ -321,6 +335,7 @@ def photo_sample(local_body: BodyModel, fit_body: BodyModel, layout: UVLayout,
         input=network_input(colour, visible, template),
         target=np.ascontiguousarray(target.transpose(2, 0, 1)),
         weight=chart[None].astype(np.float32),
+        classes=np.ascontiguousarray(classes.transpose(2, 0, 1)),
         seed=seed, yaw=scene.yaw, fill=fill,
         visible_fraction=float(visible[chart].mean()),
     )  # fmt: skip
@@ -328,11 +343,11 @@ def photo_sample(local_body: BodyModel, fit_body: BodyModel, layout: UVLayout,
 
 # -- a data folder: shards of samples -----------------------------------------------------------
 
-FORMAT = "monoavatar-photo-data-1"
+FORMAT = "monoavatar-photo-data-2"
 
 
 def write_shard(path: Path, samples: list[PhotoSample]) -> None:
-    """Samples as one npz (input float16, target float16, weight uint8)."""
+    """Samples as one npz (input, target and classes float16, weight uint8)."""
     from monoavatar.core.files import atomic_write_npz
 
     arrays = {
@@ -340,6 +355,7 @@ def write_shard(path: Path, samples: list[PhotoSample]) -> None:
         "input": np.stack([s.input for s in samples]).astype(np.float16),
         "target": np.stack([s.target for s in samples]).astype(np.float16),
         "weight": np.stack([s.weight for s in samples]).astype(np.uint8),
+        "classes": np.stack([s.classes for s in samples]).astype(np.float16),
         "seed": np.array([s.seed for s in samples]),
         "yaw": np.array([s.yaw for s in samples]),
         "fill": np.array([s.fill for s in samples]),
@@ -350,16 +366,20 @@ def write_shard(path: Path, samples: list[PhotoSample]) -> None:
 
 class PhotoDataset(torch.utils.data.Dataset[dict[str, Tensor]]):
     """The samples of the shards ``paths`` in memory, as dicts of float32 tensors ``input``
-    (7, S, S), ``target`` (6, S, S) and ``weight`` (1, S, S)."""
+    (7, S, S), ``target`` (6, S, S) — (6 + 5, S, S) with ``with_classes``: the maps, then the
+    garment-class probabilities — and ``weight`` (1, S, S)."""
 
-    def __init__(self, paths: list[Path]) -> None:
-        inputs, targets, weights, meta = [], [], [], []
+    def __init__(self, paths: list[Path], with_classes: bool = False) -> None:
+        self.with_classes = with_classes
+        inputs, targets, weights, classes, meta = [], [], [], [], []
         for path in paths:
             try:
                 with np.load(path, allow_pickle=False) as d:
                     if str(d["format"]) != FORMAT:
-                        raise PhotoDataError(f"{path}: format {str(d['format'])!r}")
+                        raise PhotoDataError(f"{path}: format {str(d['format'])!r}, not "
+                                             f"{FORMAT!r}; make the data again")  # fmt: skip
                     inputs.append(d["input"])
+                    classes.append(d["classes"])
                     targets.append(d["target"])
                     weights.append(d["weight"])
                     meta.append(np.stack([d["seed"], d["yaw"], d["fill"], d["visible"]], 1))
@@ -370,6 +390,7 @@ class PhotoDataset(torch.utils.data.Dataset[dict[str, Tensor]]):
         self.inputs = np.concatenate(inputs)
         self.targets = np.concatenate(targets)
         self.weights = np.concatenate(weights)
+        self.classes = np.concatenate(classes)
         self.meta = np.concatenate(meta)
 
     def __len__(self) -> int:
@@ -394,9 +415,29 @@ class PhotoDataset(torch.utils.data.Dataset[dict[str, Tensor]]):
             count += w.sum(0)
         return torch.from_numpy((total / np.maximum(count, 1.0)).astype(np.float32))
 
+    def class_means(self) -> Tensor:
+        """(K, 6, S, S) float32: per texel, the mean target over the samples in which the
+        texel is of garment class k (weighted by its class probability); the overall mean
+        (:meth:`mean_target`) where class k never covers the texel (total weight < 1/2)."""
+        k = self.classes.shape[1]
+        total = np.zeros((k, *self.targets.shape[1:]), np.float64)
+        count = np.zeros((k, 1, *self.targets.shape[2:]), np.float64)
+        for i in range(0, len(self), 64):
+            p = (self.classes[i : i + 64].astype(np.float64)
+                 * self.weights[i : i + 64].astype(np.float64))  # fmt: skip
+            t = self.targets[i : i + 64].astype(np.float64)
+            total += np.einsum("bkhw,bchw->kchw", p, t)
+            count += p.sum(0)[:, None]
+        mean = self.mean_target().double().numpy()[None]
+        means = np.where(count >= 0.5, total / np.maximum(count, 1e-9), mean)
+        return torch.from_numpy(means.astype(np.float32))
+
     def __getitem__(self, i: int) -> dict[str, Tensor]:
+        target = self.targets[i]
+        if self.with_classes:
+            target = np.concatenate([target, self.classes[i]])
         return {"input": torch.from_numpy(self.inputs[i].astype(np.float32)),
-                "target": torch.from_numpy(self.targets[i].astype(np.float32)),
+                "target": torch.from_numpy(target.astype(np.float32)),
                 "weight": torch.from_numpy(self.weights[i].astype(np.float32))}  # fmt: skip
 
 

@@ -15,8 +15,9 @@ from torch import nn
 
 from monoavatar.body import BodyModel
 from monoavatar.core.errors import MonoavatarError
-from monoavatar.learn.networks import ResidualOverMean, UNet
+from monoavatar.learn.networks import ClassMixture, ResidualOverMean, UNet
 from monoavatar.learn.photo_data import (
+    CLASS_CHANNELS,
     INPUT_CHANNELS,
     TARGET_CHANNELS,
     network_input,
@@ -48,6 +49,9 @@ class PhotoNetworkSettings:
             ``s``: they are the components along the average body's normal frame at each texel,
             tangential ones times ``s`` (:func:`~monoavatar.learn.uvmaps.to_normal_frame`), so
             the losses weigh tangential error, which hardly moves the surface, by ``s``.
+        classes: the network also recognises each texel's garment class and starts from that
+            class's mean maps (:class:`~monoavatar.learn.networks.ClassMixture`, trained with a
+            cross-entropy on the classes) instead of the overall mean maps.
     """
 
     base: int = 32
@@ -56,11 +60,23 @@ class PhotoNetworkSettings:
     map_size: int = 256
     residual_scale: float = 0.1
     tangential_scale: float | None = None
+    classes: bool = False
+
+    @property
+    def class_channels(self) -> int:
+        """K, the class logits after the maps in the generator's output (0: none)."""
+        return CLASS_CHANNELS if self.classes else 0
 
     def build(self, mean: torch.Tensor | None = None) -> nn.Module:
-        """The generator; ``mean`` (6, S, S) the prior maps (zeros until loaded)."""
-        net = UNet(INPUT_CHANNELS, TARGET_CHANNELS, base=self.base, depth=self.depth,
-                   max_channels=self.max_channels)  # fmt: skip
+        """The generator; ``mean`` the prior maps, (6, S, S) — with ``classes`` the per-class
+        ones, (K, 6, S, S) — zeros until loaded."""
+        net = UNet(INPUT_CHANNELS, TARGET_CHANNELS + self.class_channels, base=self.base,
+                   depth=self.depth, max_channels=self.max_channels)  # fmt: skip
+        if self.classes:
+            if mean is None:
+                mean = torch.zeros(CLASS_CHANNELS, TARGET_CHANNELS, self.map_size,
+                                   self.map_size)  # fmt: skip
+            return ClassMixture(net, mean, self.residual_scale)
         if mean is None:
             mean = torch.zeros(TARGET_CHANNELS, self.map_size, self.map_size)
         return ResidualOverMean(net, mean, self.residual_scale)
@@ -75,7 +91,8 @@ class PhotoNetworkSettings:
             tangential = a.get("tangential_scale")  # absent: canonical x, y, z
             return PhotoNetworkSettings(
                 int(a["base"]), int(a["depth"]), int(a["max_channels"]), int(a["map_size"]),
-                float(a["residual_scale"]), None if tangential is None else float(tangential))
+                float(a["residual_scale"]), None if tangential is None else float(tangential),
+                bool(a.get("classes", False)))  # absent: no classes
         except (KeyError, TypeError, ValueError) as exc:
             raise PhotoModelError(f"the weights name no photo-network architecture ({exc})"
                                   ) from exc  # fmt: skip
@@ -104,7 +121,7 @@ class PhotoNetwork:
         x = torch.from_numpy(network_input(colour, visible, self.template))[None]
         with torch.no_grad():
             y = self.generator(x.to(next(self.generator.parameters()).device))
-        maps = y[0].float().cpu().numpy().transpose(1, 2, 0)
+        maps = y[0, :TARGET_CHANNELS].float().cpu().numpy().transpose(1, 2, 0)
         if self.frames is not None and self.settings.tangential_scale is not None:
             maps[..., :3] = from_normal_frame(maps[..., :3], self.frames,
                                               self.settings.tangential_scale)  # fmt: skip

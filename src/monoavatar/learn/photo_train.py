@@ -134,8 +134,9 @@ def train_photo(folder: str | Path, config: PhotoTrainConfig | None = None) -> P
     shards = generate_photo_data(out / "data", counts, config.data, error, config.workers,
                                  config.progress)  # fmt: skip
     seconds["data"] = time.perf_counter() - t0
-    train_set = PhotoDataset(shards["train"][: -(-config.samples // 25)])
-    val_set = PhotoDataset(shards["val"][: -(-config.val // 25)])
+    classes = config.network.classes
+    train_set = PhotoDataset(shards["train"][: -(-config.samples // 25)], classes)
+    val_set = PhotoDataset(shards["val"][: -(-config.val // 25)], classes)
     if config.network.tangential_scale is not None:
         from monoavatar.body import load_body_model
         from monoavatar.learn.photo_data import template_frames
@@ -146,10 +147,12 @@ def train_photo(folder: str | Path, config: PhotoTrainConfig | None = None) -> P
         for dataset in (train_set, val_set):
             dataset.to_normal_frame(frames, config.network.tangential_scale)
     torch.manual_seed(config.train.seed)
-    generator = config.network.build(train_set.mean_target())
+    prior = train_set.class_means() if classes else train_set.mean_target()
+    generator = config.network.build(prior)
+    settings = replace(config.train, class_channels=config.network.class_channels)
     t0 = time.perf_counter()
     max_seconds = None if config.max_minutes is None else 60.0 * config.max_minutes
-    result = train(generator, train_set, val_set, config.train, out / "train",
+    result = train(generator, train_set, val_set, settings, out / "train",
                    progress=config.progress,
                    max_seconds=max_seconds)  # fmt: skip
     seconds["train"] = time.perf_counter() - t0
@@ -157,7 +160,7 @@ def train_photo(folder: str | Path, config: PhotoTrainConfig | None = None) -> P
     meta.update({
         "trained": json.dumps({"samples": config.samples, "val": config.val,
                                "fit_photos": config.fit_photos, "data": asdict(config.data),
-                               "train": asdict(config.train), "steps_done": result.steps_done,
+                               "train": asdict(settings), "steps_done": result.steps_done,
                                "finished": result.finished}),
         "validation": json.dumps(result.val or {}),
     })  # fmt: skip

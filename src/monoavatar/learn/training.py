@@ -10,7 +10,14 @@ seeds and checkpoints while ``workers == 0``).
 Losses, per step, with ``m`` the weight and ``G(x)`` the output:
 
 ``L_G = w_l1 · L1_m(G(x), y) + w_dssim · MS-DSSIM_m(G(x), y) + w_gan · ½ E[(D(x, m G(x)) − 1)²]``
+``      + w_class · CE_m(G(x)_class, y_class)``  (only with ``class_channels`` K > 0)
 ``L_D = ½ (E[(D(x, m y) − 1)²] + E[D(x, m G(x))²])``  (least-squares GAN)
+
+With ``class_channels`` K > 0 the last K channels of the output are per-pixel class logits and
+the last K of the target the class probabilities (e.g. one-hot garment classes,
+:class:`~monoavatar.learn.networks.ClassMixture`): they get the masked cross-entropy
+(:func:`~monoavatar.learn.losses.masked_cross_entropy`) and nothing else; every other term and
+the validation's L1 and MS-DSSIM see only the first C_out − K channels.
 
 The discriminator is conditioned on the input (it sees input and output concatenated) and
 sees the output and the target only where the weight is (both multiplied by it). One Adam step
@@ -27,8 +34,9 @@ loss sums), written atomically every ``checkpoint_every`` steps, at the end, and
 ``max_seconds`` runs out; ``log.jsonl``, one JSON object per validation (every
 ``validate_every`` steps and at the end): ``step``, ``seconds`` (wall seconds of training,
 summed over runs), the means since the previous entry of ``train_loss`` (L_G), ``train_l1``,
-``train_dssim``, ``train_gan`` and ``train_d`` (L_D) (those that are computed), and the
-validation errors ``val_l1`` and ``val_ms_dssim`` (:func:`evaluate`).
+``train_dssim``, ``train_gan``, ``train_class`` and ``train_d`` (L_D) (those that are computed),
+and the validation errors ``val_l1``, ``val_ms_dssim`` and, with classes, ``val_class_accuracy``
+(:func:`evaluate`).
 
 Resuming. When ``out_dir`` holds a checkpoint, training resumes from it (with the same
 trajectory settings, else an error), the log trimmed to the checkpoint's step; a run
@@ -57,6 +65,7 @@ from monoavatar.core.files import atomic_write_text
 from monoavatar.learn.losses import (
     lsgan_discriminator_loss,
     lsgan_generator_loss,
+    masked_cross_entropy,
     masked_l1,
     ms_dssim,
 )
@@ -93,7 +102,7 @@ _CONTENT = "content"  # metadata key: "checkpoint" or "generator"
 # Settings that change the trajectory: a checkpoint resumes only under the same values.
 _TRAJECTORY = (
     "batch", "lr", "betas", "seed", "l1_weight", "dssim_weight", "gan_weight", "dssim_scales",
-    "data_range",
+    "data_range", "class_channels", "class_weight",
 )  # fmt: skip
 
 
@@ -142,6 +151,9 @@ class TrainSettings:
             ``gan_weight == 0``: no discriminator.
         dssim_scales: scales of the MS-DSSIM term (fewer for small images).
         data_range: max − min of the targets, for SSIM's constants (2 for data in [−1, 1]).
+        class_channels: K, the trailing output channels that are class logits and trailing
+            target channels that are class probabilities (0: none; module docstring).
+        class_weight: w_class, the weight of their cross-entropy.
         checkpoint_every, validate_every: steps between checkpoints, between validations.
         val_batch: batch size of validation.
         device: ``"cpu"``, ``"cuda"`` or ``"cuda:N"``.
@@ -163,6 +175,8 @@ class TrainSettings:
     val_batch: int = 8
     device: str = "cpu"
     workers: int = 0
+    class_channels: int = 0
+    class_weight: float = 1.0
 
     def validate(self) -> None:
         """Raises:
@@ -172,6 +186,10 @@ class TrainSettings:
         for name in ("steps", "batch", "checkpoint_every", "validate_every", "val_batch"):
             if getattr(self, name) < 1:
                 problems.append(f"{name} must be at least 1, got {getattr(self, name)}")
+        if self.class_channels < 0:
+            problems.append(f"class_channels must be at least 0, got {self.class_channels}")
+        if not (math.isfinite(self.class_weight) and self.class_weight >= 0):
+            problems.append(f"class_weight must be non-negative, got {self.class_weight}")
         if self.workers < 0:
             problems.append(f"workers must be at least 0, got {self.workers}")
         if self.seed < 0:
@@ -250,6 +268,23 @@ def _param_dtype(module: nn.Module) -> torch.dtype:
     return next(iter(module.parameters()), torch.empty(0)).dtype
 
 
+def split_classes(out: Tensor, target: Tensor, classes: int
+                  ) -> tuple[Tensor, Tensor, Tensor | None, Tensor | None]:  # fmt: skip
+    """(maps of the output, maps of the target, class logits, class probabilities): the last
+    ``classes`` channels split off both (None, None when ``classes`` is 0).
+
+    Raises:
+        TrainError: output and target have other channel counts, or no map channel is left.
+    """
+    if out.shape[1] != target.shape[1] or out.shape[1] <= classes:
+        raise TrainError(f"output ({out.shape[1]} channels) and target ({target.shape[1]}) "
+                         f"must have the same channels, more than {classes} class channels")
+    if classes == 0:
+        return out, target, None, None
+    c = out.shape[1] - classes
+    return out[:, :c], target[:, :c], out[:, c:], target[:, c:]
+
+
 def evaluate(
     generator: nn.Module,
     dataset: Dataset[Sample],
@@ -257,6 +292,7 @@ def evaluate(
     device: str = "cpu",
     scales: int = 4,
     data_range: float = 2.0,
+    classes: int = 0,
 ) -> dict[str, float]:
     """Errors of ``generator`` on ``dataset`` (moved to ``device``, in eval mode, then back
     to its mode).
@@ -264,7 +300,10 @@ def evaluate(
     Returns:
         ``"l1"``: the masked mean absolute error over all pixels and channels of the dataset
         (``Σ m |G(x) − y| / (C Σ m)``); ``"ms_dssim"``: the mean MS-DSSIM of the samples whose
-        weight is not all 0 (NaN if none is).
+        weight is not all 0 (NaN if none is); with ``classes`` K > 0 (the last K channels are
+        class logits and probabilities, not maps): those two on the maps alone, and
+        ``"class_accuracy"``, the weighted fraction of pixels whose most likely class is the
+        target's most probable one.
 
     Raises:
         TrainError: an empty dataset, malformed samples, an unavailable device.
@@ -278,7 +317,7 @@ def evaluate(
     dtype = _param_dtype(generator)
     was_training = generator.training
     generator.eval()
-    l1_total = weight_total = dssim_total = 0.0
+    l1_total = weight_total = dssim_total = hits = 0.0
     images = 0
     try:
         with torch.no_grad():
@@ -286,7 +325,11 @@ def evaluate(
             loader = DataLoader(dataset, batch_size=batch, generator=torch.Generator())
             for raw in loader:
                 x, target, weight = (t.to(dev, dtype) for t in _unpack(raw))
-                out = generator(x)
+                out, target, logits, probabilities = split_classes(generator(x), target,
+                                                                   classes)  # fmt: skip
+                if logits is not None and probabilities is not None:
+                    agree = logits.argmax(1, keepdim=True) == probabilities.argmax(1, keepdim=True)
+                    hits += float((weight * agree).sum(dtype=torch.float64))
                 l1_total += float((weight * (out - target).abs()).sum(dtype=torch.float64))
                 weight_total += float(weight.sum(dtype=torch.float64)) * target.shape[1]
                 dssim = ms_dssim(out, target, weight, scales=scales, data_range=data_range,
@@ -296,10 +339,14 @@ def evaluate(
                 images += int(present.sum())
     finally:
         generator.train(was_training)
-    return {
+    errors = {
         "l1": l1_total / weight_total if weight_total > 0 else math.nan,
         "ms_dssim": dssim_total / images if images > 0 else math.nan,
     }
+    if classes:
+        pixels = weight_total / max(1, target.shape[1])
+        errors["class_accuracy"] = hits / pixels if pixels > 0 else math.nan
+    return errors
 
 
 def _permutation(seed: int, epoch: int, size: int) -> list[int]:
@@ -368,7 +415,8 @@ def _train_step(
     settings: TrainSettings,
 ) -> dict[str, float]:
     """One Adam step of D (if any), then one of G; the loss terms' values."""
-    out = generator(x)
+    out, target, logits, probabilities = split_classes(generator(x), target,
+                                                       settings.class_channels)  # fmt: skip
     terms: dict[str, float] = {}
     if discriminator is not None and opt_d is not None:
         real = discriminator(torch.cat([x, target * weight], dim=1))
@@ -386,6 +434,10 @@ def _train_step(
                          data_range=settings.data_range)  # fmt: skip
         loss = loss + settings.dssim_weight * dssim
         terms["dssim"] = dssim.item()
+    if logits is not None and probabilities is not None:
+        ce = masked_cross_entropy(logits, probabilities, weight)
+        loss = loss + settings.class_weight * ce
+        terms["class"] = ce.item()
     if discriminator is not None:
         flags = [p.requires_grad for p in discriminator.parameters()]
         discriminator.requires_grad_(False)  # G's loss needs no gradient of D's weights
@@ -454,10 +506,11 @@ def _load_checkpoint(
     except (KeyError, ValueError, TypeError) as error:
         raise TrainError(f"{path}: malformed checkpoint metadata ({error!r})") from error
     current = asdict(settings)
+    default = asdict(TrainSettings())  # a key the checkpoint predates had its default
     changed = [
-        f"{key} {saved.get(key)!r} -> {current[key]!r}"
+        f"{key} {saved.get(key, default[key])!r} -> {current[key]!r}"
         for key in _TRAJECTORY
-        if json.loads(json.dumps(current[key])) != saved.get(key)
+        if json.loads(json.dumps(current[key])) != saved.get(key, default[key])
     ]
     if changed:
         raise TrainError(
@@ -547,7 +600,7 @@ def train(
         torch.default_generator.manual_seed(settings.seed)
         if settings.gan_weight > 0 and discriminator is None:
             c_in, c_out = _sample_channels(train_set)
-            discriminator = PatchDiscriminator(c_in + c_out)
+            discriminator = PatchDiscriminator(c_in + c_out - settings.class_channels)
         generator.to(device).train()
         if discriminator is not None:
             discriminator.to(device).train()
@@ -616,7 +669,8 @@ def _run(
                 entry.update(state.losses.means())
                 if val_set is not None:
                     errors = evaluate(generator, val_set, settings.val_batch, settings.device,
-                                      settings.dssim_scales, settings.data_range)  # fmt: skip
+                                      settings.dssim_scales, settings.data_range,
+                                      settings.class_channels)  # fmt: skip
                     entry.update({f"val_{k}": v for k, v in errors.items()})
                 state.losses = _Losses()
                 history.append(entry)

@@ -20,6 +20,9 @@ from monoavatar.core.camera import PinholeCamera
 from monoavatar.render import rasterize, vertex_normals
 from monoavatar.synth.options import CLOTHING
 
+GARMENTS = ("skin", "top", "bottom", "hair", "shoes")
+"""The garment classes of :attr:`Subject.garment`, by index."""
+
 SKIN_TONES = np.array(
     [[0.95, 0.80, 0.69], [0.88, 0.69, 0.56], [0.78, 0.57, 0.44], [0.62, 0.43, 0.31],
      [0.45, 0.30, 0.21], [0.32, 0.21, 0.15]]
@@ -129,7 +132,7 @@ class Subject:
         subdivision: the fine mesh's connectivity, UVs and skinning weights.
         rest_vertices: (V_f, 3) fine canonical vertices, clothing included, metres.
         displacement: (V_f,) clothing/hair displacement along canonical normals, metres.
-        garment: (V_f,) 0 skin, 1 top, 2 bottom, 3 hair, 4 shoes.
+        garment: (V_f,) index into :data:`GARMENTS` (0 skin, 1 top, 2 bottom, 3 hair, 4 shoes).
         texture: (T, T, 3) float albedo in [0, 1], glTF UVs.
         parts: (V_f,) dominant fitting joint of each fine vertex (for tests and labels).
     """
