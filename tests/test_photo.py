@@ -29,8 +29,8 @@ FAST_POSE = PoseSettings(init_iterations=30, iterations=15, silhouette_points=40
 
 @pytest.fixture(scope="module")
 def weights(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A small network with random weights whose output is scaled up, so that the maps
-    displace the surface visibly."""
+    """A small class network with random weights (zero class priors), so that the maps
+    displace the surface visibly and the garment labels vary."""
     torch.manual_seed(0)
     settings = PhotoNetworkSettings(base=8, depth=5, max_channels=32)
     net = settings.build()
@@ -66,8 +66,9 @@ def result(photo_folder: Path, weights: Path, tmp_path_factory: pytest.TempPathF
 def test_outputs_complete(result) -> None:  # type: ignore[no-untyped-def]
     out = result.folder
     for name in ("avatar.glb", "avatar.obj", "texture.png", "params.npz", "report.json",
-                 "maps/normal.png", "maps/displacement.npz", "preview/input.png",
-                 "preview/partial_texture.png", "preview/maps.png", "preview/turntable.png"):
+                 "maps/normal.png", "maps/displacement.npz", "maps/garments.png",
+                 "preview/input.png", "preview/partial_texture.png", "preview/maps.png",
+                 "preview/turntable.png"):
         assert (out / name).is_file(), name
     assert not list(out.glob(".staging-*"))
     report = json.loads((out / "report.json").read_text())
@@ -75,6 +76,24 @@ def test_outputs_complete(result) -> None:  # type: ignore[no-untyped-def]
             "export"} <= set(report["timings"])  # fmt: skip
     assert report["fit"]["silhouette_iou"][0] > 0.7
     assert report["input"]["kind"] == "image"
+
+
+def test_garment_map_written_with_its_labels(result) -> None:  # type: ignore[no-untyped-def]
+    """A class network's labels: in maps/displacement.npz (class index on the charts, 255
+    outside), as maps/garments.png in the documented colours, and as the preview's 4th panel."""
+    from monoavatar.pipelines.stages import GARMENT_COLOURS
+    from monoavatar.synth.subjects import GARMENTS
+
+    with np.load(result.folder / "maps" / "displacement.npz") as d:
+        labels, chart, names = d["garments"], d["chart"], list(d["garment_names"])
+    assert names == list(GARMENTS)
+    np.testing.assert_array_equal(labels, result.garments)
+    assert labels[chart].max() < len(GARMENTS) and np.all(labels[~chart] == 255)
+    picture = np.asarray(Image.open(result.folder / "maps" / "garments.png"))
+    np.testing.assert_array_equal(picture[chart], GARMENT_COLOURS[labels[chart]])
+    assert np.all(picture[~chart] == 128)
+    preview = np.asarray(Image.open(result.folder / "preview" / "maps.png"))
+    np.testing.assert_array_equal(preview[:, 3 * 256:], picture)
 
 
 def test_surface_is_the_body_displaced_by_the_map(result, anny32) -> None:  # type: ignore[no-untyped-def]

@@ -808,9 +808,11 @@ def _add_train_photo(p: argparse.ArgumentParser) -> None:
     _option(p, "--tangential-scale", PhotoNetworkSettings, "tangential_scale", "predict the "
             "displacement along the body's normal frame, tangential components times this in "
             "the losses (none: canonical x, y, z)", type=float)  # fmt: skip
-    p.add_argument("--classes", action="store_true",
+    p.add_argument("--classes", action=argparse.BooleanOptionalAction,
+                   default=_default(PhotoNetworkSettings, "classes"),
                    help="the network also recognises each texel's garment class and starts "
-                        "from that class's mean maps (default: the overall mean maps)")
+                        "from that class's mean maps; --no-classes: from the overall mean maps "
+                        "(default: %(default)s)")  # fmt: skip
     _option(p, "--workers", PhotoTrainConfig, "workers", "processes making the data", type=int)
     _option(p, "--max-minutes", PhotoTrainConfig, "max_minutes", "stop training after this "
             "many minutes (resume by running the command again)", type=float)  # fmt: skip

@@ -19,7 +19,8 @@ from monoavatar.learn.photo_model import (
 )
 from monoavatar.learn.training import export_generator
 
-SMALL = PhotoNetworkSettings(base=4, depth=5, max_channels=8, map_size=64, residual_scale=0.1)
+SMALL = PhotoNetworkSettings(base=4, depth=5, max_channels=8, map_size=64, residual_scale=0.1,
+                             classes=False)  # fmt: skip
 
 
 def test_residual_starts_at_the_mean_and_saves_it() -> None:
@@ -51,8 +52,9 @@ def test_load_predict_and_refuse(anny32, tmp_path: Path) -> None:  # type: ignor
     export_generator(SMALL.build(mean), path, SMALL.metadata())
     network = load_photo_network(anny32, path)
     assert torch.equal(network.generator.state_dict()["mean"], mean)  # the prior came back
-    maps = network.predict(np.zeros((64, 64, 3), np.float32), np.zeros((64, 64), bool))
-    assert maps.shape == (64, 64, 6)
+    maps, probabilities = network.infer(np.zeros((64, 64, 3), np.float32),
+                                        np.zeros((64, 64), bool))  # fmt: skip
+    assert maps.shape == (64, 64, 6) and probabilities is None  # no classes
     assert np.all(maps[~network.layout.chart] == 0)
     with pytest.raises(PhotoModelError, match="no photo-network weights"):
         load_photo_network(anny32, tmp_path / "missing.safetensors")
@@ -84,7 +86,8 @@ def test_normal_frame_predictions_come_back_canonical(anny32, tmp_path: Path
 def test_a_class_network_predicts_its_recognised_classs_maps(anny32, tmp_path: Path
                                                              ) -> None:  # type: ignore[no-untyped-def]  # fmt: skip
     """Class priors M_k (k + 1 everywhere) and a network whose head answers class 2 (its bias):
-    predict() gives M_2's six channels, not the logits; the priors load back."""
+    predict() gives M_2's six channels, not the logits; infer() the class probabilities, one-hot
+    on class 2 inside the charts and zero outside; the priors load back."""
     settings = replace(SMALL, classes=True)
     means = torch.arange(1.0, 6.0).view(5, 1, 1, 1).expand(5, 6, 64, 64).clone()
     net = settings.build(means)
@@ -99,6 +102,14 @@ def test_a_class_network_predicts_its_recognised_classs_maps(anny32, tmp_path: P
     maps = network.predict(np.zeros((64, 64, 3), np.float32), np.zeros((64, 64), bool))
     assert maps.shape == (64, 64, 6)
     np.testing.assert_allclose(maps[network.layout.chart], 3.0, atol=1e-5)
+    same, probabilities = network.infer(np.zeros((64, 64, 3), np.float32),
+                                        np.zeros((64, 64), bool))  # fmt: skip
+    np.testing.assert_array_equal(same, maps)
+    assert probabilities is not None and probabilities.shape == (64, 64, 5)
+    chart = network.layout.chart
+    np.testing.assert_allclose(probabilities[chart], np.eye(5)[[2]].repeat(chart.sum(), 0),
+                               atol=1e-6)  # fmt: skip
+    assert np.all(probabilities[~chart] == 0)
 
 
 def test_shipped_weights_load(anny32) -> None:  # type: ignore[no-untyped-def]

@@ -60,7 +60,7 @@ class PhotoNetworkSettings:
     map_size: int = 256
     residual_scale: float = 0.1
     tangential_scale: float | None = None
-    classes: bool = False
+    classes: bool = True
 
     @property
     def class_channels(self) -> int:
@@ -118,6 +118,13 @@ class PhotoNetwork:
     def predict(self, colour: np.ndarray, visible: np.ndarray) -> np.ndarray:
         """(S, S, 6) float32 maps (displacement / DISPLACEMENT_SCALE, normals; canonical frame)
         from a partial texture (S, S, 3) in [0, 1] and its visibility (S, S) bool."""
+        return self.infer(colour, visible)[0]
+
+    def infer(self, colour: np.ndarray, visible: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray | None]:  # fmt: skip
+        """The maps of :meth:`predict` and, for a network with ``classes``, each texel's garment
+        class probabilities (S, S, K) float32 in the order of
+        :data:`~monoavatar.synth.subjects.GARMENTS` (zero outside the charts); else None."""
         x = torch.from_numpy(network_input(colour, visible, self.template))[None]
         with torch.no_grad():
             y = self.generator(x.to(next(self.generator.parameters()).device))
@@ -126,7 +133,13 @@ class PhotoNetwork:
             maps[..., :3] = from_normal_frame(maps[..., :3], self.frames,
                                               self.settings.tangential_scale)  # fmt: skip
         maps[~self.layout.chart] = 0.0
-        return np.ascontiguousarray(maps)
+        probabilities = None
+        if self.settings.classes:
+            logits = y[0, TARGET_CHANNELS:].float()
+            probabilities = torch.softmax(logits, 0).cpu().numpy().transpose(1, 2, 0)
+            probabilities[~self.layout.chart] = 0.0
+            probabilities = np.ascontiguousarray(probabilities)
+        return np.ascontiguousarray(maps), probabilities
 
 
 def load_photo_network(body: BodyModel, path: str | Path | None = None,

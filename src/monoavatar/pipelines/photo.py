@@ -42,6 +42,7 @@ from monoavatar.pipelines.stages import (
     PipelineError,
     StageTimer,
     check_options,
+    garment_labels,
     kept_warnings,
     load_inputs,
     machine,
@@ -97,6 +98,7 @@ class PhotoResult:
     files: dict[str, Path]
     track: PoseTrack
     maps: np.ndarray  # (S, S, 6)
+    garments: np.ndarray | None  # (S, S) uint8 class labels (stages.garment_labels), or None
     vertices: np.ndarray  # (V_f, 3) fine canonical surface, metres
     offsets: np.ndarray  # (V, 3) the body's own vertices' displacement, metres
     report: Report
@@ -208,9 +210,10 @@ def photo_texture(body: BodyModel, inputs: Inputs, track: PoseTrack, offsets: np
 
 
 def _export(out: Path, input_path: str | Path, body: BodyModel, inputs: Inputs,
-            track: PoseTrack, network: PhotoNetwork, maps: np.ndarray, colour: np.ndarray,
-            visible: np.ndarray, fine: np.ndarray, offsets: np.ndarray, texture: UVTexture,
-            sh: np.ndarray, config: PhotoConfig, caught: list[str]
+            track: PoseTrack, network: PhotoNetwork, maps: np.ndarray,
+            garments: np.ndarray | None, colour: np.ndarray, visible: np.ndarray,
+            fine: np.ndarray, offsets: np.ndarray, texture: UVTexture, sh: np.ndarray,
+            config: PhotoConfig, caught: list[str]
             ) -> tuple[dict[str, Path], Report]:  # fmt: skip
     from monoavatar.io.avatar_folder import (
         AvatarFolder,
@@ -224,6 +227,7 @@ def _export(out: Path, input_path: str | Path, body: BodyModel, inputs: Inputs,
     from monoavatar.pipelines.previews import fine_turntable, render_fine
     from monoavatar.pipelines.stages import (
         fine_skinned_mesh,
+        garment_picture,
         map_files,
         map_pictures,
         pose_fine,
@@ -272,12 +276,14 @@ def _export(out: Path, input_path: str | Path, body: BodyModel, inputs: Inputs,
     previews = {
         "input": np.concatenate([photo_image, overlay], axis=1),
         "partial_texture": partial,
-        "maps": np.concatenate([partial, disp_png, normal_png], axis=1),
+        "maps": np.concatenate([partial, disp_png, normal_png]
+                               + ([] if garments is None else [garment_picture(garments)]),
+                               axis=1),  # fmt: skip
         "turntable": fine_turntable(fine, layout, tex),
     }
     folder = AvatarFolder(params, report, fine, sub.faces.numpy(), uv=sub.uv.double().numpy(),
                           face_uv=sub.face_uv.numpy(), texture=texture.image, previews=previews,
-                          extras={**map_files(maps, layout.chart, visible),
+                          extras={**map_files(maps, layout.chart, visible, garments),
                                   KEYFRAMES_FILE: keyframe_atlas(photo_image[None])})  # fmt: skip
     glb = fine_skinned_mesh(body, layout, track.shape, fine, texture.image)
     return folder.save(out, glb=glb), report
@@ -321,17 +327,20 @@ def _photo(input_path: str | Path, out: Path, config: PhotoConfig) -> PhotoResul
                                               inputs.frames.images[0], obs.masks[0],
                                               track.camera, network.settings.map_size)  # fmt: skip
         with stage("maps"):
-            maps = network.predict(colour, visible)
+            maps, probabilities = network.infer(colour, visible)
         with stage("surface"):
             fine, offsets = surface(body, network, track.shape, maps)
         with stage("texture"):
             texture, sh = photo_texture(body, inputs, track, offsets, config.texture_size)
     caught = [f"{record.category.__name__}: {record.message}" for record in records]
     with stage("export"):
-        files, report = _export(out, input_path, body, inputs, track, network, maps, colour,
-                                visible, fine, offsets, texture, sh, config, caught)  # fmt: skip
+        garments = (None if probabilities is None
+                    else garment_labels(probabilities, network.layout.chart))  # fmt: skip
+        files, report = _export(out, input_path, body, inputs, track, network, maps, garments,
+                                colour, visible, fine, offsets, texture, sh, config,
+                                caught)  # fmt: skip
     bar.close()
     report.seconds = time.perf_counter() - start
     report.timings = dict(timer.seconds)
     report.write(out / "report.json")
-    return PhotoResult(out, files, track, maps, fine, offsets, report)
+    return PhotoResult(out, files, track, maps, garments, fine, offsets, report)

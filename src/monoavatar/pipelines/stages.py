@@ -546,10 +546,35 @@ def fine_skinned_mesh(body: BodyModel, layout: UVLayout, shape: np.ndarray,
                        rest_joints=rest_joints[0].double().numpy(), texture=texture)  # fmt: skip
 
 
-def map_files(maps: np.ndarray, chart: np.ndarray, visible: np.ndarray | None) -> dict[str, bytes]:
+#: RGB of each garment class in ``maps/garments.png``, in the order of ``GARMENTS``
+GARMENT_COLOURS = np.array([[224, 172, 140], [52, 110, 200], [70, 70, 70], [120, 60, 20],
+                            [200, 40, 40]], np.uint8)  # fmt: skip
+NO_GARMENT = 255  # the label outside the charts
+
+
+def garment_labels(probabilities: np.ndarray, chart: np.ndarray) -> np.ndarray:
+    """(S, S) uint8: the most probable garment class of each texel (probabilities (S, S, K)),
+    :data:`NO_GARMENT` outside the charts."""
+    labels = probabilities.argmax(-1).astype(np.uint8)
+    labels[~chart] = NO_GARMENT
+    return labels
+
+
+def garment_picture(labels: np.ndarray) -> np.ndarray:
+    """(S, S, 3) uint8: each texel in its class's :data:`GARMENT_COLOURS`, grey outside."""
+    picture = np.full((*labels.shape, 3), 128, np.uint8)
+    inside = labels != NO_GARMENT
+    picture[inside] = GARMENT_COLOURS[labels[inside]]
+    return picture
+
+
+def map_files(maps: np.ndarray, chart: np.ndarray, visible: np.ndarray | None,
+              garments: np.ndarray | None = None) -> dict[str, bytes]:  # fmt: skip
     """``maps/normal.png`` and ``maps/displacement.npz`` of UV maps (S, S, 6) (displacement /
-    DISPLACEMENT_SCALE, normals), as an avatar folder's extra files."""
+    DISPLACEMENT_SCALE, normals), as an avatar folder's extra files; with ``garments``, the
+    labels of :func:`garment_labels`, also ``maps/garments.png`` and the labels in the npz."""
     from monoavatar.learn.uvmaps import DISPLACEMENT_SCALE
+    from monoavatar.synth.subjects import GARMENTS
 
     _, normal_png = map_pictures(maps, chart)
     arrays = dict(displacement=(maps[..., :3] * DISPLACEMENT_SCALE).astype(np.float32),
@@ -558,4 +583,9 @@ def map_files(maps: np.ndarray, chart: np.ndarray, visible: np.ndarray | None) -
                                  "(origin top-left)"))  # fmt: skip
     if visible is not None:
         arrays["visible"] = visible
-    return {"maps/normal.png": png_bytes(normal_png), "maps/displacement.npz": npz_bytes(**arrays)}
+    files = {"maps/normal.png": png_bytes(normal_png)}
+    if garments is not None:
+        arrays["garments"] = garments
+        arrays["garment_names"] = np.array(GARMENTS)
+        files["maps/garments.png"] = png_bytes(garment_picture(garments))
+    return {**files, "maps/displacement.npz": npz_bytes(**arrays)}
