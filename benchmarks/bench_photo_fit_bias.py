@@ -19,12 +19,12 @@ from pathlib import Path
 
 import numpy as np
 import torch
-import trimesh
 
 from monoavatar.bench.metrics import Rig, surface_metrics
 from monoavatar.body import load_body_model
+from monoavatar.core.geometry import vertex_normals
 from monoavatar.eval.alignment import align_similarity
-from monoavatar.learn.photo_data import base_fine_vertices
+from monoavatar.learn.photo_data import base_fine_vertices, photo_rng
 from monoavatar.learn.uvmaps import sample_vertex_values, uv_layout
 from monoavatar.synth.subjects import build_subject, sample_subject
 
@@ -44,7 +44,7 @@ def main() -> None:
         if not params.is_file():
             continue
         seed = int(folder.name.split("-")[1])
-        spec = sample_subject(np.random.default_rng([seed, 5]), local)  # as render_photo draws
+        spec = sample_subject(photo_rng(seed), local)
         subject = build_subject(local, spec, 64)
         with np.load(params) as p:
             shape = p["shape"]
@@ -54,16 +54,16 @@ def main() -> None:
         fitted = base_fine_vertices(body, layout, shape).double().numpy()
         a = align_similarity(fitted, true_base)
         fitted = a.scale * fitted @ a.rotation.T + a.translation
-        normals = trimesh.Trimesh(true_base, faces, process=False).vertex_normals
+        truth = subject.rest_vertices.double().numpy()
+        normals = vertex_normals(true_base, faces).double().numpy()
         w = 1000 * ((fitted - true_base) * normals).sum(1)
-        t = 1000 * ((subject.rest_vertices.double().numpy() - true_base) * normals).sum(1)
+        t = 1000 * ((truth - true_base) * normals).sum(1)
         skin, cloth = subject.garment == 0, np.isin(subject.garment, (1, 2))
         both = skin | cloth
         with torch.no_grad():
             _, joints = body.rest_shape(torch.as_tensor(spec.shape[:6], dtype=body.dtype)[None])
         rig = Rig(layout.subdivision.weights.double().numpy(), joints[0].double().numpy(),
                   tuple(body.parents))  # fmt: skip
-        truth = subject.rest_vertices.double().numpy()
         alone, _ = surface_metrics(true_base, faces, truth, faces, rig=rig)
         mapped, _ = surface_metrics(true_base + displacement, faces, truth, faces, rig=rig)
         print(f"| {seed} | {spec.clothing} | {w[skin].mean():+.1f} | {w[cloth].mean():+.1f} | "

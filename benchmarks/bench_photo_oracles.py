@@ -40,7 +40,12 @@ from PIL import Image
 from monoavatar.bench.metrics import Rig, surface_metrics
 from monoavatar.body import load_body_model
 from monoavatar.core.geometry import vertex_normals
-from monoavatar.learn.photo_data import PhotoDataSettings, base_fine_vertices, render_photo
+from monoavatar.learn.photo_data import (
+    PhotoDataSettings,
+    base_fine_vertices,
+    photo_rng,
+    render_photo,
+)
 from monoavatar.learn.photo_model import load_photo_network
 from monoavatar.learn.shards import iter_seeds
 from monoavatar.learn.uvmaps import (
@@ -69,7 +74,7 @@ def class_priors(local_body, body, layout, count: int) -> tuple[np.ndarray, np.n
     per_class = np.zeros((CLASSES, S, S, 3))
     weight = np.zeros((CLASSES, S, S, 1))
     for seed in iter_seeds("train", count):
-        spec = sample_subject(np.random.default_rng([seed, 5]), local_body)
+        spec = sample_subject(photo_rng(seed), local_body)
         subject = build_subject(local_body, spec, 64)
         base = base_fine_vertices(body, layout, np.asarray(spec.shape[:6]))
         disp = displacement_targets(layout, base, subject.rest_vertices.double())[..., :3]

@@ -57,6 +57,7 @@ __all__ = [
     "PhotoSample",
     "network_input",
     "partial_texture",
+    "photo_rng",
     "photo_sample",
     "render_photo",
     "template_positions",
@@ -187,13 +188,20 @@ class PhotoScene:
     posed: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 3)))
 
 
+def photo_rng(seed: int) -> np.random.Generator:
+    """The generator all of photo ``seed``'s draws come from, in :func:`render_photo`'s order:
+    the subject (:func:`~monoavatar.synth.subjects.sample_subject`) first, so
+    ``sample_subject(photo_rng(seed), body)`` is that photo's subject without rendering it."""
+    return np.random.default_rng([seed, 5])
+
+
 def render_photo(body: BodyModel, seed: int, settings: PhotoDataSettings) -> PhotoScene:
     """The synthetic photograph of seed ``seed``: subject, pose, camera, lighting, background
     and noise all drawn from it (``body`` is the local-changes Anny of synth)."""
     from monoavatar.body.motion import standing_pose
     from monoavatar.render import sample_sh_lighting
 
-    rng = np.random.default_rng([seed, 5])
+    rng = photo_rng(seed)
     spec = sample_subject(rng, body)
     subject = build_subject(body, spec, settings.texture_size)
     pose = standing_pose(body, rng)
