@@ -38,10 +38,11 @@ import torch
 from PIL import Image
 
 from monoavatar.bench.metrics import Rig, surface_metrics
-from monoavatar.body import load_body_model
+from monoavatar.body import BodyModel, load_body_model
 from monoavatar.core.geometry import vertex_normals
 from monoavatar.learn.photo_data import (
     PhotoDataSettings,
+    PhotoScene,
     base_fine_vertices,
     photo_rng,
     render_photo,
@@ -50,11 +51,12 @@ from monoavatar.learn.photo_model import load_photo_network
 from monoavatar.learn.shards import iter_seeds
 from monoavatar.learn.uvmaps import (
     DISPLACEMENT_SCALE,
+    UVLayout,
     displacement_targets,
     rasterise_vertex_values,
     sample_vertex_values,
 )
-from monoavatar.pipelines.photo import PhotoConfig, photo
+from monoavatar.pipelines.photo import PhotoConfig, PhotoResult, photo
 
 ORACLES = ("body", "maps", "exact", "exact_clothing", "exact_local", "coverage_mean_thick",
            "mean", "class_means")
@@ -63,7 +65,8 @@ CLASSES = 5  # synth.subjects.Subject.garment: skin, top, bottom, hair, shoes
 CLOTHED = 0.004
 
 
-def class_priors(local_body, body, layout, count: int) -> tuple[np.ndarray, np.ndarray]:  # type: ignore[no-untyped-def]  # noqa: E501
+def class_priors(local_body: BodyModel, body: BodyModel, layout: UVLayout, count: int
+                 ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """The mean displacement map (S, S, 3) of ``count`` training subjects (seeds of the train
     split, drawn as ``render_photo`` draws them) and per garment class (CLASSES, S, S, 3),
     both in DISPLACEMENT_SCALE units; a class never seen at a texel falls back to the mean."""
@@ -89,7 +92,9 @@ def class_priors(local_body, body, layout, count: int) -> tuple[np.ndarray, np.n
     return mean.astype(np.float32), per_class.astype(np.float32)
 
 
-def _score(scene, result, body, local_body, layout, priors, oracles) -> dict[str, float]:  # type: ignore[no-untyped-def]  # noqa: E501
+def _score(scene: PhotoScene, result: PhotoResult, body: BodyModel, local_body: BodyModel,
+           layout: UVLayout, priors: tuple[np.ndarray, np.ndarray], oracles: list[str]
+           ) -> dict[str, float]:  # fmt: skip
     """Each oracle's surface error (mm) for one photo's ``scene`` and its ``photo`` result."""
     faces = layout.subdivision.faces.numpy()
     truth = scene.subject.rest_vertices.double().numpy()
