@@ -34,7 +34,6 @@ from monoavatar.core.landmarks import LIMB_LANDMARKS
 from monoavatar.eval.joints import tracking_errors
 from monoavatar.fit.pose import PoseSettings, fit_poses
 from monoavatar.fit.tracking import TrackSettings, track_motion
-from monoavatar.perception.pipeline import PerceptionSettings
 from monoavatar.pipelines.stages import InputSettings, load_inputs
 from monoavatar.pipelines.track import EVAL_JOINTS, TrackConfig, lifted
 
@@ -120,8 +119,7 @@ def run(scene: Path, variants: tuple[str, ...], lifter: Path | None = None,
         world_weight: float | None = None,
         overrides: dict[str, object] | None = None) -> list[dict]:  # fmt: skip
     t0 = time.perf_counter()
-    settings = InputSettings(frames=100_000, perception="mediapipe",
-                             perception_settings=PerceptionSettings(flow="dis", face=False))
+    settings = replace(TrackConfig().input, perception="mediapipe")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         inputs = load_inputs(scene, settings)

@@ -35,3 +35,20 @@ def anny32() -> BodyModel:
 def anny_local() -> BodyModel:
     """Anny with its 256 local changes, float32 (ground-truth subjects use it)."""
     return load_body_model("anny-local", dtype=torch.float32)
+
+
+@pytest.fixture
+def perception_spy(monkeypatch: pytest.MonkeyPatch) -> list[object]:
+    """Replace :func:`monoavatar.perception.perceive` by a spy that records the settings it
+    is called with and stops the command with a PerceptionError ("stopped by the test")."""
+    import monoavatar.perception as perception
+    from monoavatar.perception.errors import PerceptionError
+
+    seen: list[object] = []
+
+    def spy(frames, camera=None, settings=None, **kwargs):  # type: ignore[no-untyped-def]
+        seen.append(settings)
+        raise PerceptionError("stopped by the test")
+
+    monkeypatch.setattr(perception, "perceive", spy)
+    return seen

@@ -15,6 +15,7 @@ from monoavatar.fit.pose import PoseSettings
 from monoavatar.fit.shape import ShapeSettings
 from monoavatar.io.avatar_folder import AvatarFolder
 from monoavatar.io.export_mesh import write_mp4
+from monoavatar.perception import PerceptionSettings
 from monoavatar.pipelines.reconstruct import ReconstructConfig, reconstruct
 from monoavatar.pipelines.stages import InputSettings, PipelineError
 from monoavatar.synth.scene import SynthConfig, generate
@@ -221,26 +222,17 @@ def test_shifted_track_applies_the_shape_fits_corrections_to_its_frames(tiny_res
 
 
 def test_no_grabcut_reaches_perception(tiny_scene: Path, tmp_path: Path,
-                                       monkeypatch: pytest.MonkeyPatch,
+                                       perception_spy: list[PerceptionSettings],
                                        capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     """``--no-grabcut`` (and its default, on) arrives at :func:`perceive` as its settings."""
-    import monoavatar.perception as perception
-    from monoavatar.perception.errors import PerceptionError
-
-    seen = []
-
-    def spy(frames, camera=None, settings=None, **kwargs):  # type: ignore[no-untyped-def]
-        seen.append(settings)
-        raise PerceptionError("stopped by the test")
-
-    monkeypatch.setattr(perception, "perceive", spy)
+    seen = perception_spy
     base = ["reconstruct", str(tiny_scene), "-o", str(tmp_path / "out"), "--frames", "4",
             "--perception", "mediapipe", "--quiet"]  # fmt: skip
     assert main([*base, "--no-grabcut"]) == 2
     assert main(base) == 2
     assert "stopped by the test" in capsys.readouterr().err
     assert [s.grabcut for s in seen] == [False, True]
-    assert seen[1] == perception.PerceptionSettings()
+    assert seen[1] == PerceptionSettings()
 
 
 def test_texture_option_reaches_the_config(tmp_path: Path) -> None:

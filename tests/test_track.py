@@ -13,6 +13,7 @@ from PIL import Image
 
 from monoavatar.cli import main
 from monoavatar.io.export_mesh import write_mp4
+from monoavatar.perception import PerceptionSettings
 from monoavatar.synth.scene import SynthConfig, generate
 from tests.io.gltf_reference import validate, validator_available
 from tests.io.test_bvh import _fk, _parse
@@ -141,6 +142,23 @@ def test_an_unknown_landmark_source_is_refused_before_any_work(walk: Path, tmp_p
 
     with pytest.raises(PipelineError, match="landmarks_3d must be one of"):
         track(walk, tmp_path / "out", TrackConfig(landmarks_3d="mediapipe", progress=False))
+    assert not (tmp_path / "out").exists()
+
+
+def test_grabcut_is_off_for_track_unless_asked(
+    walk: Path, tmp_path: Path, perception_spy: list[PerceptionSettings],
+    capsys: pytest.CaptureFixture[str]
+) -> None:
+    """track perceives without the GrabCut refinement by default and with it on --grabcut;
+    the rest of its perception settings (flow, no face mesh) are kept either way."""
+    seen = perception_spy
+    base = ["track", str(walk), "-o", str(tmp_path / "out"), "--perception", "mediapipe",
+            "--quiet"]  # fmt: skip
+    assert main(base) == 2
+    assert main([*base, "--grabcut"]) == 2
+    assert "stopped by the test" in capsys.readouterr().err
+    assert [s.grabcut for s in seen] == [False, True]
+    assert all(s.flow == "dis" and not s.face for s in seen)
     assert not (tmp_path / "out").exists()
 
 

@@ -416,6 +416,10 @@ def _add_track(p: argparse.ArgumentParser) -> None:
     p.add_argument("--flow-method", choices=("dis", "deepflow"), default="dis",
                    help="optical flow: OpenCV's DIS (fast) or DeepFlow (slower, more accurate; "
                    "default: %(default)s)")  # fmt: skip
+    p.add_argument("--grabcut", action=argparse.BooleanOptionalAction,
+                   default=TrackConfig().input.perception_settings.grabcut,
+                   help="refine mediapipe's person masks with GrabCut, as reconstruct does "
+                   "(slower, and it did not change the track; default: %(default)s)")
     p.add_argument("--no-flow", action="store_true", help="without the flow term (Eq. A.1)")
     p.add_argument("--no-keypoints", action="store_true",
                    help="without the 2D keypoint term (flow, silhouette and 3D landmarks only)")
@@ -459,7 +463,7 @@ def _run_track(args: argparse.Namespace) -> int:
     config.track = replace(config.track, pose=pose, flow=not args.no_flow,
                            keypoints=not args.no_keypoints, world=not args.no_world,
                            flow_weight=args.flow_weight)  # fmt: skip
-    perception = replace(config.input.perception_settings,
+    perception = replace(config.input.perception_settings, grabcut=args.grabcut,
                          flow=None if args.no_flow else args.flow_method)  # fmt: skip
     first, stop = args.frame_range if args.frame_range is not None else (None, None)
     config.input = replace(config.input, focal=args.focal, perception=args.perception,

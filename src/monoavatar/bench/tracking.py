@@ -13,7 +13,7 @@ from __future__ import annotations
 import json
 import shutil
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -69,8 +69,6 @@ def run_tracking_bench(out_dir: str | Path, *, quick: bool = False, progress: bo
                        scenes_dir: str | Path | None = None) -> dict[str, Any]:  # fmt: skip
     """Track each motion sequence and write ``tracking.json`` and ``tracking.md`` into
     ``out_dir``. A failing sequence is recorded with its error and the others go on."""
-    from monoavatar.perception.pipeline import PerceptionSettings
-    from monoavatar.pipelines.stages import InputSettings
     from monoavatar.pipelines.track import TrackConfig, track
 
     out = Path(out_dir)
@@ -80,9 +78,7 @@ def run_tracking_bench(out_dir: str | Path, *, quick: bool = False, progress: bo
         scene = _scene(sequence, scenes, progress)
         info = json.loads((scene / "scene.json").read_text())
         config = TrackConfig(progress=progress)
-        perception = PerceptionSettings(flow="dis", face=False)
-        config.input = InputSettings(frames=100_000, perception="mediapipe",
-                                     perception_settings=perception)  # fmt: skip
+        config.input = replace(config.input, perception="mediapipe")  # track's own otherwise
         config.track.pose.height = float(info["subjects"][0]["height_m"])
         folder = out / "tracking" / sequence.name
         if folder.exists():

@@ -63,8 +63,11 @@ LANDMARK_SOURCES = ("lifter", "detector")
 
 
 def _track_input() -> InputSettings:
-    return InputSettings(frames=MAX_FRAMES,
-                         perception_settings=PerceptionSettings(flow="dis", face=False))
+    """Every frame, with flow, no face mesh, and mediapipe's masks without the GrabCut
+    refinement (``docs/decisions.md``: it costs a third of the perception and does not move
+    the track)."""
+    return InputSettings(frames=MAX_FRAMES, perception_settings=PerceptionSettings(
+        flow="dis", face=False, grabcut=False))
 
 
 @dataclass
@@ -72,7 +75,8 @@ class TrackConfig:
     """Settings of ``monoavatar track`` (the CLI derives its options from these defaults).
 
     Attributes:
-        input: what to read and how to perceive it (every frame, with flow, no face mesh).
+        input: what to read and how to perceive it (every frame, with flow, no face mesh,
+            no GrabCut).
         avatar: a ``reconstruct`` folder whose avatar is tracked (None: a shape is fitted on
             the first frames).
         landmarks_3d: where the 3D landmarks come from: ``"lifter"`` (lifted from the 2D
