@@ -474,6 +474,42 @@ def test_observations_validation() -> None:
         Observations(**{**good, "flow": np.zeros((2, 5, 7, 2))})  # type: ignore[arg-type]
 
 
+def test_a_second_detection_over_the_hidden_person_is_no_second_person() -> None:
+    """With the subject painted over, a detector may find a large "person" in the paint and
+    the background clutter around it (seen on synth clutter backgrounds): its region takes in
+    the subject's, so it is not counted; a detection beside the subject is."""
+    from monoavatar.perception.interfaces import PoseResult
+    from monoavatar.perception.people import second_person
+
+    h, w = 80, 120
+    image = np.full((h, w, 3), 20, np.uint8)
+    first_mask = np.zeros((h, w), np.float32)
+    first_mask[30:60, 50:60] = 1.0  # 300 px
+    keypoints = np.zeros((33, 3), np.float32)
+    keypoints[:, :2] = (55, 45)
+    keypoints[:, 2] = 1.0
+    first = PoseResult(keypoints, first_mask)
+
+    class Once:
+        def __init__(self, mask: np.ndarray, at: tuple[float, float]) -> None:
+            kp = np.zeros((33, 3), np.float32)
+            kp[:, :2], kp[:, 2] = at, 1.0
+            self.result = PoseResult(kp, mask)
+
+        def detect(self, image: np.ndarray) -> PoseResult:
+            return self.result
+
+    settings = PerceptionSettings(check_several_people=True)
+    engulfing = np.zeros((h, w), np.float32)
+    engulfing[5:75, 20:110] = 1.0  # 6300 px, the subject's 300 inside: 5 % of it
+    kept, found = second_person(image, first, Once(engulfing, (25, 10)), settings, 50)  # type: ignore[arg-type]
+    assert kept is first and not found
+    beside = np.zeros((h, w), np.float32)
+    beside[30:62, 80:92] = 1.0  # 384 px, no overlap
+    kept, found = second_person(image, first, Once(beside, (86, 46)), settings, 50)  # type: ignore[arg-type]
+    assert found
+
+
 def test_second_person_search_keeps_the_central_largest() -> None:
     images = np.full((1, 80, 120, 3), 20, np.uint8)
     images[0, 10:75, 50:80] = 220  # the subject

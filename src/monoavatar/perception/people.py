@@ -155,8 +155,10 @@ def second_person(
     more central and larger) and whether a second person was found.
 
     A second detection counts when its region covers at least ``other_person_fraction`` of the
-    first's area, barely overlaps the first (< 20 %), and most of its confidently seen landmarks
-    lie outside the first person.
+    first's area, barely overlaps the first (< 20 % of the smaller of the two: a region that
+    takes in the painted-over first person is the detector seeing the paint and the clutter
+    around it, not someone else), and most of its confidently seen landmarks lie outside the
+    first person.
     """
     shape = (int(image.shape[0]), int(image.shape[1]))
     first_region = person_region(first, shape, settings.mask_threshold)
@@ -169,7 +171,7 @@ def second_person(
     area, other_area = int(first_region.sum()), int(other_region.sum())
     if other_area < max(min_area, settings.other_person_fraction * area):
         return first, False
-    if int((other_region & first_region).sum()) > 0.2 * other_area:
+    if int((other_region & first_region).sum()) > 0.2 * min(area, other_area):
         return first, False
     if fraction_inside(other.keypoints, first_region) > 0.5:
         return first, False
