@@ -419,7 +419,7 @@ def _add_track(p: argparse.ArgumentParser) -> None:
     p.add_argument("--grabcut", action=argparse.BooleanOptionalAction,
                    default=TrackConfig().input.perception_settings.grabcut,
                    help="refine mediapipe's person masks with GrabCut, as reconstruct does "
-                   "(slower, and it did not change the track; default: %(default)s)")
+                   "(slower; the track hardly depends on it; default: %(default)s)")
     p.add_argument("--no-flow", action="store_true", help="without the flow term (Eq. A.1)")
     p.add_argument("--no-keypoints", action="store_true",
                    help="without the 2D keypoint term (flow, silhouette and 3D landmarks only)")

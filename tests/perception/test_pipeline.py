@@ -476,7 +476,7 @@ def test_observations_validation() -> None:
 
 def test_a_second_detection_over_the_hidden_person_is_no_second_person() -> None:
     """With the subject painted over, a detector may find a large "person" in the paint and
-    the background clutter around it (seen on synth clutter backgrounds): its region takes in
+    the background clutter around it (e.g. over synth's clutter backgrounds): its region takes in
     the subject's, so it is not counted; a detection beside the subject is."""
     from monoavatar.perception.interfaces import PoseResult
     from monoavatar.perception.people import second_person

@@ -64,8 +64,7 @@ LANDMARK_SOURCES = ("lifter", "detector")
 
 def _track_input() -> InputSettings:
     """Every frame, with flow, no face mesh, and mediapipe's masks without the GrabCut
-    refinement (``docs/decisions.md``: it costs a third of the perception and does not move
-    the track)."""
+    refinement (why: ``docs/decisions.md``)."""
     return InputSettings(frames=MAX_FRAMES, perception_settings=PerceptionSettings(
         flow="dis", face=False, grabcut=False))
 
