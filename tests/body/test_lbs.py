@@ -52,3 +52,17 @@ def test_skin_equals_per_vertex_blend():
          for i in range(V)]
     )  # fmt: skip
     assert torch.allclose(lbs.skin(v, w, A)[0], expected, atol=1e-12)
+
+
+def test_skin_with_weights_per_batch_entry_equals_separate_calls():
+    gen = torch.Generator().manual_seed(2)
+    B, V, J = 3, 5, 4
+    w = torch.rand(B, V, J, generator=gen, dtype=torch.float64)
+    w = w / w.sum(-1, keepdim=True)
+    A = torch.eye(4, dtype=torch.float64).repeat(B, J, 1, 1)
+    A[:, :, :3, :] += 0.2 * torch.randn(B, J, 3, 4, generator=gen, dtype=torch.float64)
+    v = torch.randn(B, V, 3, generator=gen, dtype=torch.float64)
+    batched = lbs.skin(v, w, A)
+    for b in range(B):
+        assert torch.allclose(batched[b], lbs.skin(v[b : b + 1], w[b], A[b : b + 1])[0],
+                              atol=1e-12)  # fmt: skip

@@ -314,6 +314,28 @@ def test_coverage_energy_closed_form_and_padding() -> None:
     assert torch.autograd.gradcheck(lambda p: energies.coverage_energy(p, targets, sigma), (x,))
 
 
+def test_padding_model_points_count_in_neither_silhouette_term() -> None:
+    """A frame padded with model points marked invalid (``points_valid``) has the energies of
+    the frame without them, although the padding lies far outside the mask and right on the
+    boundary samples."""
+    targets = energies.silhouette_targets(_rectangle()[None], levels=2, boundary_count=40)
+    boundary = targets.boundary[:, targets.boundary_valid[0]].to(DT)
+    rng = np.random.default_rng(7)
+    real = _t(rng.uniform([COLS[0] - 20, ROWS[0] - 20], [COLS[1] + 20, ROWS[1] + 20], (1, 30, 2)))
+    padded = torch.cat([real, boundary + 0.25, _t([[[1.5, 1.5]]])], dim=1)
+    valid = torch.zeros(1, padded.shape[1], dtype=torch.bool)
+    valid[0, :30] = True
+    assert float(energies.outside_energy(padded, targets, valid)) == pytest.approx(
+        float(energies.outside_energy(real, targets)), rel=1e-6)
+    assert float(energies.coverage_energy(padded, targets, 0.1, valid)) == pytest.approx(
+        float(energies.coverage_energy(real, targets, 0.1)), rel=1e-6)
+    # and the padding would have changed both
+    assert float(energies.outside_energy(padded, targets)) != pytest.approx(
+        float(energies.outside_energy(real, targets)), rel=1e-3)
+    assert float(energies.coverage_energy(padded, targets, 0.1)) < 0.5 * float(
+        energies.coverage_energy(real, targets, 0.1))
+
+
 def test_correspondence_energy_point_to_point_and_point_to_line_closed_forms() -> None:
     sigma, scale = 1.0, 50.0
     projected = _t([[[10.0, 10.0], [20.0, 5.0], [0.0, 0.0]]])
@@ -516,3 +538,17 @@ def test_penetration_energy_is_zero_beyond_the_radius() -> None:
     assert torch.autograd.gradcheck(
         lambda p: energies.penetration_energy(p, a, b, radius), (points.clone().requires_grad_(),)
     )
+
+
+def test_nearest_points_agree_with_brute_force_and_skip_invalid_points() -> None:
+    rng = np.random.default_rng(8)
+    queries = _t(rng.uniform(0, 100, (3, 40, 2)))
+    points = _t(rng.uniform(0, 100, (3, 70, 2)))
+    brute = ((queries[:, :, None] - points[:, None]) ** 2).sum(-1).argmin(-1)
+    assert torch.equal(energies.nearest_points(queries, points), brute)
+    valid = torch.from_numpy(rng.random((3, 70)) < 0.3)
+    masked = ((queries[:, :, None] - points[:, None]) ** 2).sum(-1)
+    masked = masked.masked_fill(~valid[:, None, :], float("inf")).argmin(-1)
+    got = energies.nearest_points(queries, points, valid)
+    assert torch.equal(got, masked)
+    assert bool(valid.gather(1, got).all())

@@ -293,17 +293,19 @@ def test_contour_term_pulls_the_outline_onto_the_mask(anny32: BodyModel) -> None
 
 
 def test_frames_fitted_side_by_side_match_one_by_one(anny32: BodyModel) -> None:
-    """The frames are independent: fitting them in 3 threads gives the poses that one thread
-    gives (no state shared between frames, results kept in frame order), up to rounding: runs
-    in threads are not bit-identical (see ``frame_pool``)."""
+    """The frames are independent: preparing them in 3 threads and fitting them in one batch
+    gives the poses that one thread and batches of one frame give (no state shared between
+    frames, each its own padded points, results kept in frame order), up to rounding: runs in
+    threads are not bit-identical (see ``frame_pool``)."""
     obs, images, poses, texture = _scene(anny32)
     start = _track(anny32, _perturbed(anny32, poses), obs.camera)
     pose_settings = PoseSettings(silhouette_points=600, boundary_points=150, smooth_weight=0.0)
     shape = anny32.default_shape(1)[0].double().numpy()
     offsets = np.zeros((anny32.num_vertices, 3))
     tracks = [refine_poses_with_flow(anny32, obs, images, start, shape, offsets, texture, None,
-                                     FlowRefineSettings(iterations=5, workers=w), pose_settings)
-              for w in (1, 3)]  # fmt: skip
+                                     FlowRefineSettings(iterations=5, workers=w, batch=b),
+                                     pose_settings)
+              for w, b in ((1, 1), (3, 30))]  # fmt: skip
     moved = np.abs(tracks[0].poses - start.poses).max()
     assert moved > 2e-3  # the fit moved the poses, by far more than the tolerance below
     np.testing.assert_allclose(tracks[1].poses, tracks[0].poses, atol=1e-4)
@@ -315,6 +317,8 @@ def test_settings_are_checked() -> None:
         FlowRefineSettings(points=0)
     with pytest.raises(ValueError, match="workers"):
         FlowRefineSettings(workers=0)
+    with pytest.raises(ValueError, match="batch"):
+        FlowRefineSettings(batch=0)
     with pytest.raises(ValueError, match="max_flow"):
         FlowRefineSettings(max_flow=0.0)
     with pytest.raises(ValueError, match="contour_max_cos"):

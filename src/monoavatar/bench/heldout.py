@@ -159,7 +159,7 @@ def _render_heldout(body: BodyModel, vertices: np.ndarray, camera: PinholeCamera
 HELDOUT_TRACK_ROUNDS = 3
 """Flow rounds of the tracker on the held-out frames (as ``reconstruct --flow-rounds``)."""
 
-HELDOUT_TRACK_ITERATIONS = 20
+HELDOUT_TRACK_ITERATIONS = 30
 """L-BFGS iterations per frame and round of that tracker: fixed here, so that the measurement
 does not move with ``reconstruct``'s own default (``FlowRefineSettings.iterations``)."""
 

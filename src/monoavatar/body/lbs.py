@@ -107,10 +107,12 @@ def skin(vertices: Tensor, weights: Tensor, transforms: Tensor) -> Tensor:
 
     Args:
         vertices: (B, V, 3) rest vertices (template + shape + correctives + offsets).
-        weights: (V, J) skinning weights.
+        weights: (V, J) skinning weights, or (B, V, J) when each batch entry has its own
+            vertices.
         transforms: (B, J, 4, 4) joint transforms.
     Returns:
         (B, V, 3) posed vertices.
     """
-    blend = torch.einsum("vj,bjmn->bvmn", weights, transforms[:, :, :3, :])
+    pattern = "vj,bjmn->bvmn" if weights.dim() == 2 else "bvj,bjmn->bvmn"
+    blend = torch.einsum(pattern, weights, transforms[:, :, :3, :])
     return (blend[..., :3] @ vertices.unsqueeze(-1)).squeeze(-1) + blend[..., 3]

@@ -2,8 +2,8 @@
 
 The fitters work on small tensors, for which extra PyTorch threads cost more than they save
 (see ``PoseSettings.threads`` and ``ShapeSettings.threads``); the caller's setting comes back
-afterwards. Work that is independent per frame (the flow rounds' fits, the texture's views)
-runs frames side by side instead, each frame on one thread (:func:`frame_pool`).
+afterwards. Work that is independent per frame (the flow rounds' renders and flow, the texture's
+views) runs frames side by side instead, each frame on one thread (:func:`frame_pool`).
 """
 
 from __future__ import annotations

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 import torch
+from scipy.spatial import cKDTree
 from torch import Tensor
 from torch.nn import functional
 
@@ -133,24 +134,54 @@ def sample_image(image: Tensor, points: Tensor) -> Tensor:
     return out[..., 0]  # fmt: skip
 
 
-def outside_energy(projected: Tensor, targets: SilhouetteTargets) -> Tensor:
+def outside_energy(projected: Tensor, targets: SilhouetteTargets,
+                   points_valid: Tensor | None = None) -> Tensor:  # fmt: skip
     """Model points that fall outside the observed mask (the w_o I_rn C part of Eq. B.4):
-    mean over points and pyramid levels of (distance to the mask / scale)². (B,)."""
+    mean over points and pyramid levels of (distance to the mask / scale)². ``points_valid``
+    (B, N) bool: only those points count (None: all). (B,)."""
     dist = sample_image(targets.outside, projected)  # (B, L, N)
-    return ((dist / targets.scale[:, None, None]) ** 2).mean(dim=(1, 2))
+    squared = (dist / targets.scale[:, None, None]) ** 2
+    if points_valid is None:
+        return squared.mean(dim=(1, 2))
+    w = points_valid.to(projected.dtype)[:, None, :]
+    return (squared * w).sum(dim=(1, 2)) / (w.sum(dim=(1, 2)) * dist.shape[1]).clamp_min(1.0)
 
 
-def coverage_energy(projected: Tensor, targets: SilhouetteTargets, sigma: float = 0.1) -> Tensor:
+def coverage_energy(projected: Tensor, targets: SilhouetteTargets, sigma: float = 0.1,
+                    points_valid: Tensor | None = None) -> Tensor:  # fmt: skip
     """Observed mask the model misses (the w_i (1 − I_rn) C̄ part of Eq. B.4): each observed
     boundary sample's distance to the nearest projected model point, robustly penalised,
-    averaged over samples. Differentiable through the nearest model point. (B,)."""
+    averaged over samples. Differentiable through the nearest model point. ``points_valid``
+    (B, N) bool: only those model points can be the nearest (None: all). (B,)."""
     boundary = targets.boundary.to(projected.dtype)  # (B, P, 2)
-    with torch.no_grad():  # which point is nearest; the distance to it is differentiated
-        index = torch.cdist(boundary, projected).argmin(dim=-1)  # (B, P)
+    index = nearest_points(boundary, projected.detach(), points_valid)  # (B, P)
     points = torch.gather(projected, 1, index.unsqueeze(-1).expand(-1, -1, 2))
     nearest = ((boundary - points) ** 2).sum(-1) / targets.scale[:, None] ** 2
     valid = targets.boundary_valid.to(projected.dtype)
     return (geman_mcclure(nearest, sigma) * valid).sum(-1) / valid.sum(-1).clamp_min(1.0)
+
+
+def nearest_points(queries: Tensor, points: Tensor, points_valid: Tensor | None = None) -> Tensor:
+    """Index of the nearest point to each query, exactly (a k-d tree per frame, in float64).
+
+    Args:
+        queries: (B, P, D); points: (B, M, D), M ≥ 1.
+        points_valid: (B, M) bool, which points may be chosen (None: all); a frame without a
+            valid point gets index 0.
+    Returns:
+        (B, P) int64 indices into the points.
+    """
+    q = queries.detach().double().cpu().numpy()
+    x = points.detach().double().cpu().numpy()
+    keep = None if points_valid is None else points_valid.cpu().numpy()
+    out = np.zeros(q.shape[:2], np.int64)
+    for k in range(len(q)):
+        ids = np.arange(x.shape[1]) if keep is None else np.flatnonzero(keep[k])
+        if len(ids) == 0 or q.shape[1] == 0:
+            continue
+        tree = cKDTree(x[k, ids], leafsize=32, balanced_tree=False, compact_nodes=False)
+        out[k] = ids[tree.query(q[k])[1]]
+    return torch.from_numpy(out).to(queries.device)
 
 
 def correspondence_energy(

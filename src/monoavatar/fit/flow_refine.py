@@ -36,6 +36,7 @@ from tqdm import tqdm
 from monoavatar.body import BodyModel
 from monoavatar.core.camera import PinholeCamera
 from monoavatar.core.threads import frame_pool, torch_threads
+from monoavatar.fit import energies
 from monoavatar.fit import pose as posefit
 from monoavatar.fit import pose_energy as pe
 from monoavatar.fit.prior import apose_prior
@@ -86,13 +87,16 @@ class FlowRefineSettings:
             and would push the outline out when pulled onto the edge).
         contour_max_distance: pixels; edge samples farther than this from every outline
             vertex get no match.
-        workers: threads that fit key-frames side by side (each frame's fit is independent
-            of the others', so the poses depend on the count only through rounding; see
-            :func:`monoavatar.core.threads.frame_pool`).
+        workers: threads that prepare key-frames' terms side by side (render, flow, outline;
+            :func:`monoavatar.core.threads.frame_pool`), and PyTorch's threads in the
+            batched fit.
+        batch: key-frames fitted in one batched L-BFGS (one state per frame,
+            :func:`monoavatar.fit.pose_energy.fit_frames`); each frame's fit is its own, so
+            the poses depend on the count only through rounding.
     """
 
     points: int = 1500
-    iterations: int = 20
+    iterations: int = 30
     rigid_iterations: int = 0
     weight: float = 300.0
     sigma: float = 1.0
@@ -106,9 +110,10 @@ class FlowRefineSettings:
     contour_max_cos: float = 0.1
     contour_max_distance: float = 6.0
     workers: int = 2
+    batch: int = 20
 
     def __post_init__(self) -> None:
-        for name in ("points", "iterations", "contour_samples", "workers"):
+        for name in ("points", "iterations", "contour_samples", "workers", "batch"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
         if self.rigid_iterations < 0:
@@ -292,7 +297,7 @@ def _refine(body: BodyModel, obs: Observations, images: np.ndarray, track: posef
     energy = track.energy.copy()
     good = np.flatnonzero(~track.failed & ~obs.no_person)
 
-    def refine_frame(i: int) -> tuple[np.ndarray, np.ndarray, float]:
+    def prepare(i: int) -> _FrameTerms:
         pose_i = torch.as_tensor(poses[i : i + 1], dtype=dtype)
         trans_i = torch.as_tensor(trans[i : i + 1], dtype=dtype)
         with torch.no_grad():
@@ -304,69 +309,104 @@ def _refine(body: BodyModel, obs: Observations, images: np.ndarray, track: posef
         inside_px = inside_distance(frags)  # for both the flow's margin and the outline
         targets, valid = flow_correspondences(verts[point_ids], camera, frags, flow,
                                               obs.masks[i], settings, inside_px)  # fmt: skip
-        frames = replace(
-            pe.frames_at(obs, np.array([i]), pose_settings, dtype),
-            flow=pe.Correspondences(torch.as_tensor(targets[None], dtype=dtype),
-                                         torch.as_tensor(valid[None]), settings.weight,
-                                         settings.sigma),  # fmt: skip
-        )
-        sub_i = sub
-        if settings.contour_weight > 0:
-            sub_i, frames = _with_contour(sub, body, rest[0], d, point_ids, frames,
-                                          contour_correspondences(verts, faces, camera, frags,
-                                                                  obs.masks[i], settings,
-                                                                  inside_px),
-                                          settings)  # fmt: skip
-        p_out, t_out, e_out = pe.fit_window(
-            ctx, sub_i, frames, poses[i : i + 1], trans[i : i + 1], None, settings.iterations
-        )
-        return p_out[0], t_out[0], float(e_out[0])
+        contour = (contour_correspondences(verts, faces, camera, frags, obs.masks[i], settings,
+                                           inside_px)
+                   if settings.contour_weight > 0 else None)  # fmt: skip
+        frames = pe.frames_at(obs, np.array([i]), pose_settings, dtype)
+        return _FrameTerms(frames, targets, valid, contour)
 
-    # frame by frame, without the smoothness term: every frame is tied to the one texture
-    # (L-BFGS on one frame converges in far fewer iterations than on a window of them); the
-    # frames are independent, so ``workers`` threads fit them side by side
-    with frame_pool(settings.workers) as pool:
-        fitted = tqdm(pool.map(refine_frame, good), total=len(good), desc="flow refinement",
-                      unit="frame", disable=not progress)  # fmt: skip
-        results = list(fitted)
-    for i, (p_i, t_i, e_i) in zip(good, results, strict=True):
-        poses[i], trans[i], energy[i] = p_i, t_i, e_i
+    # every frame on its own, without the smoothness term: every frame is tied to the one
+    # texture; the frames' terms are prepared side by side in ``workers`` threads, then a
+    # chunk of ``batch`` frames is fitted in one batched L-BFGS (one state per frame)
+    with tqdm(total=len(good), desc="flow refinement", unit="frame",
+              disable=not progress) as bar:  # closed before an interruption is reported
+        for chunk in np.array_split(good, max(1, -(-len(good) // settings.batch))):
+            if len(chunk) == 0:
+                continue
+            with frame_pool(settings.workers) as pool:
+                prepared = list(pool.map(prepare, chunk))
+            sub_b, frames_b = _batch_terms(sub, body, rest[0], d, point_ids, prepared, settings)
+            with torch_threads(settings.workers):
+                p_out, t_out, e_out = pe.fit_frames(ctx, sub_b, frames_b, poses[chunk],
+                                                    trans[chunk], settings.iterations)  # fmt: skip
+            poses[chunk], trans[chunk], energy[chunk] = p_out, t_out, e_out
+            bar.update(len(chunk))
     seconds = time.perf_counter() - start
     return replace(track, poses=poses, translations=trans, energy=energy,
                    seconds=track.seconds + seconds,
                    timings={**track.timings, "flow": seconds})  # fmt: skip
 
 
-def _with_contour(
+@dataclass(frozen=True)
+class _FrameTerms:
+    """One key-frame's terms for the flow round: its observations, the flow targets of the
+    model points (N, 2) px with their validity (N,), and the outline matches
+    (:func:`contour_correspondences`, None without the outline term)."""
+
+    frames: pe.Frames
+    flow_targets: np.ndarray
+    flow_valid: np.ndarray
+    contour: tuple[np.ndarray, np.ndarray, np.ndarray] | None
+
+
+def _batch_terms(
     sub: pe.Subset,
     body: BodyModel,
     rest: Tensor,
     offsets: Tensor,
     point_ids: np.ndarray,
-    frames: pe.Frames,
-    contour: tuple[np.ndarray, np.ndarray, np.ndarray],
+    prepared: list[_FrameTerms],
     settings: FlowRefineSettings,
 ) -> tuple[pe.Subset, pe.Frames]:
-    """A subset whose model points are the flow points followed by the matched outline
-    vertices, and the frame's terms on it: the flow targets on the first, the outline's
-    edge targets (point-to-line) on the rest."""
-    vids, edge, normals = contour
-    points = np.concatenate([point_ids, vids])
-    ids = torch.from_numpy(points)
-    sub = replace(sub, rest=rest[ids], weights=body.skin_weights[ids], offsets=offsets[ids])
-    n_flow, n = len(point_ids), len(points)
-    dtype = frames.keypoints.dtype
-    flow = frames.flow
-    assert flow is not None
-    pad = torch.zeros(1, n - n_flow, 2, dtype=dtype)
-    flow = replace(flow, targets=torch.cat([flow.targets, pad], 1),
-                   valid=torch.cat([flow.valid, torch.zeros(1, n - n_flow, dtype=torch.bool)], 1))
-    targets = torch.zeros(1, n, 2, dtype=dtype)
-    targets[0, n_flow:] = torch.as_tensor(edge, dtype=dtype)
-    unit = torch.zeros(1, n, 2, dtype=dtype)
-    unit[0, n_flow:] = torch.as_tensor(normals, dtype=dtype)
-    valid = torch.zeros(1, n, dtype=torch.bool)
-    valid[0, n_flow:] = True
-    contour_terms = pe.Correspondences(targets, valid, settings.contour_weight,
-                                            settings.contour_sigma, unit)  # fmt: skip
-    return sub, replace(frames, flow=flow, contour=contour_terms)
+    """The subset and terms of B frames fitted together: each frame's model points are the
+    flow points followed by its own matched outline vertices, padded to one count M
+    (``Subset.valid``); the flow targets on the first, the outline's edge targets
+    (point-to-line) on the second."""
+    n_flow = len(point_ids)
+    contours = [t.contour if t.contour is not None else
+                (np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 2))) for t in prepared]
+    m = n_flow + max(len(c[0]) for c in contours)
+    b = len(prepared)
+    ids = np.full((b, m), point_ids[0], np.int64)
+    point_valid = np.zeros((b, m), bool)
+    flow_targets, flow_valid = np.zeros((b, m, 2)), np.zeros((b, m), bool)
+    edge, normals, edge_valid = np.zeros((b, m, 2)), np.zeros((b, m, 2)), np.zeros((b, m), bool)
+    for k, (terms, (vids, edge_k, normals_k)) in enumerate(zip(prepared, contours, strict=True)):
+        end = n_flow + len(vids)
+        ids[k, :n_flow], ids[k, n_flow:end] = point_ids, vids
+        point_valid[k, :end] = True
+        flow_targets[k, :n_flow], flow_valid[k, :n_flow] = terms.flow_targets, terms.flow_valid
+        edge[k, n_flow:end], normals[k, n_flow:end] = edge_k, normals_k
+        edge_valid[k, n_flow:end] = True
+    dtype = prepared[0].frames.keypoints.dtype
+    index = torch.from_numpy(ids)
+    batched = replace(sub, rest=rest[index], weights=body.skin_weights[index],
+                      offsets=offsets[index], valid=torch.from_numpy(point_valid))  # fmt: skip
+    frames = _stack_frames([t.frames for t in prepared])
+    frames = replace(
+        frames,
+        flow=pe.Correspondences(torch.as_tensor(flow_targets, dtype=dtype),
+                                torch.from_numpy(flow_valid), settings.weight,
+                                settings.sigma),  # fmt: skip
+        contour=(pe.Correspondences(torch.as_tensor(edge, dtype=dtype),
+                                    torch.from_numpy(edge_valid), settings.contour_weight,
+                                    settings.contour_sigma, torch.as_tensor(normals, dtype=dtype))
+                 if settings.contour_weight > 0 else None),  # fmt: skip
+    )
+    return batched, frames
+
+
+def _stack_frames(frames: list[pe.Frames]) -> pe.Frames:
+    """The observations of single frames as one batch (boundary samples padded)."""
+    targets = [f.targets for f in frames]
+    count = max(t.boundary.shape[1] for t in targets)
+    boundary = torch.zeros(len(frames), count, 2, dtype=targets[0].boundary.dtype)
+    boundary_valid = torch.zeros(len(frames), count, dtype=torch.bool)
+    for k, t in enumerate(targets):
+        boundary[k, : t.boundary.shape[1]] = t.boundary[0]
+        boundary_valid[k, : t.boundary.shape[1]] = t.boundary_valid[0]
+    return pe.Frames(
+        torch.cat([f.keypoints for f in frames]),
+        energies.SilhouetteTargets(torch.cat([t.outside for t in targets]), boundary,
+                                   boundary_valid, torch.cat([t.scale for t in targets])),
+    )

@@ -15,7 +15,9 @@ bilinearly at them (model outside the mask), and (ii) each observed boundary pix
 its nearest projected model point (mask the model misses).
 
 Optimiser: L-BFGS with a strong-Wolfe line search on all frames of a window at once
-(:func:`lbfgs`). Image-space residuals are in percent of the person's height in pixels.
+(:func:`lbfgs`, :func:`fit_window`); frames fitted each on its own are batched with one L-BFGS
+state per frame (:func:`fit_frames`). Image-space residuals are in percent of the person's
+height in pixels.
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ from monoavatar.core.camera import PinholeCamera
 from monoavatar.core.errors import MonoavatarError
 from monoavatar.core.landmarks import MEDIAPIPE_MIRROR
 from monoavatar.fit import energies
+from monoavatar.fit.batched_lbfgs import minimize_rows
 from monoavatar.fit.prior import PosePrior
 from monoavatar.perception.observations import Observations
 
@@ -97,14 +100,17 @@ class PoseSettings:
 @dataclass(frozen=True)
 class Subset:
     """The body with a fixed shape, posed only at a subset of vertices (the silhouette points)
-    and at its keypoints."""
+    and at its keypoints. ``rest``, ``weights`` and ``offsets`` carry a leading frame
+    dimension B when every frame has points of its own (:func:`fit_frames`); ``valid`` then
+    says which are real and which pad the frames to one count."""
 
-    rest: Tensor  # (M, 3) rest positions of the silhouette points
-    weights: Tensor  # (M, J)
+    rest: Tensor  # (M, 3) or (B, M, 3) rest positions of the silhouette points
+    weights: Tensor  # (M, J) or (B, M, J)
     rest_joints: Tensor  # (J, 3)
     keypoint_basis: Tensor  # (33, J, 4): see keypoint_basis
     parents: tuple[int, ...]
-    offsets: Tensor | None = None  # (M, 3) canonical offsets D of the silhouette points
+    offsets: Tensor | None = None  # (M, 3) or (B, M, 3) canonical offsets D of the points
+    valid: Tensor | None = None  # (B, M) bool: the real points (None: all)
 
     def pose(self, rotations: Tensor, translation: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         """rotations (B, J, 3, 3), translation (B, 3) → keypoints (B, 33, 3) of the body,
@@ -125,7 +131,8 @@ class Subset:
             transforms[..., :3, :3] @ joints.unsqueeze(-1)
         ).squeeze(-1)
         rest = self.rest if self.offsets is None else self.rest + self.offsets
-        silhouette = lbs.skin(rest.expand(b, -1, -1), self.weights, transforms)
+        silhouette = lbs.skin(rest.expand(b, -1, -1) if rest.dim() == 2 else rest,
+                              self.weights, transforms)  # fmt: skip
         keypoints = torch.einsum("bjmn,kjn->bkm", transforms[:, :, :3, :], self.keypoint_basis)
         return keypoints, posed_joints, silhouette
 
@@ -141,6 +148,13 @@ class Variables:
         self.delta = torch.zeros(p.shape[0], 3, dtype=dtype, requires_grad=True)
         self.body = p[:, 1:].clone().requires_grad_(True)
         self.translation = torch.as_tensor(translation, dtype=dtype).clone().requires_grad_(True)
+
+    @classmethod
+    def of(cls, root_ref: Tensor, delta: Tensor, body: Tensor, translation: Tensor) -> Variables:
+        """Variables from tensors (B, 3, 3), (B, 3), (B, J − 1, 3), (B, 3), used as given."""
+        var = cls.__new__(cls)
+        var.root_ref, var.delta, var.body, var.translation = root_ref, delta, body, translation
+        return var
 
     @property
     def params(self) -> list[Tensor]:
@@ -287,8 +301,9 @@ def energy_terms(ctx: EnergyContext, sub: Subset, var: Variables, frames: Frames
     terms = {
         "keypoints": energies.keypoint_energy(kp_px, frames.keypoints, frames.targets.scale,
                                               s.keypoint_sigma),  # fmt: skip
-        "outside": energies.outside_energy(sil_px, frames.targets),
-        "coverage": energies.coverage_energy(sil_px, frames.targets, s.coverage_sigma),
+        "outside": energies.outside_energy(sil_px, frames.targets, sub.valid),
+        "coverage": energies.coverage_energy(sil_px, frames.targets, s.coverage_sigma,
+                                             sub.valid),  # fmt: skip
         "prior": energies.gaussian_prior_energy(var.body.reshape(b, -1), ctx.prior.mean,
                                                 ctx.prior.precision),  # fmt: skip
         "limits": energies.hinge_limit_energy(var.body, ctx.limits),
@@ -398,6 +413,71 @@ def fit_window(ctx: EnergyContext, sub: Subset, frames: Frames, pred_p: np.ndarr
     if s.rigid_iterations:  # the global rotation and translation first: well conditioned
         lbfgs([var.delta, var.translation], total, s.rigid_iterations)
     lbfgs(var.params, total, iterations or s.iterations)
+    with torch.no_grad():
+        e = weighted_energy(ctx, energy_terms(ctx, sub, var, frames))
+    p, t = var.numpy()
+    return p, t, e.double().numpy().copy()
+
+
+def select_frames(sub: Subset, frames: Frames, rows: Tensor) -> tuple[Subset, Frames]:
+    """Frames ``rows`` (R,) int64 of a batch: the subset's per-frame points (when it has them)
+    and every observation, for :func:`fit_frames`' line search."""
+
+    def pick(x: Tensor | None, batched: bool = True) -> Tensor | None:
+        return x.index_select(0, rows) if x is not None and batched else x
+
+    def pick_c(c: Correspondences | None) -> Correspondences | None:
+        if c is None:
+            return None
+        return Correspondences(c.targets.index_select(0, rows), c.valid.index_select(0, rows),
+                               c.weight, c.sigma, pick(c.normals))  # fmt: skip
+
+    per_frame = sub.rest.dim() == 3
+    sub_r = Subset(pick(sub.rest, per_frame), pick(sub.weights, per_frame),  # type: ignore[arg-type]
+                   sub.rest_joints, sub.keypoint_basis, sub.parents,
+                   pick(sub.offsets, per_frame), pick(sub.valid))  # fmt: skip
+    t = frames.targets
+    targets = energies.SilhouetteTargets(t.outside.index_select(0, rows),
+                                         t.boundary.index_select(0, rows),
+                                         t.boundary_valid.index_select(0, rows),
+                                         t.scale.index_select(0, rows))  # fmt: skip
+    return sub_r, Frames(frames.keypoints.index_select(0, rows), targets, pick_c(frames.flow),
+                         pick_c(frames.contour))  # fmt: skip
+
+
+def fit_frames(ctx: EnergyContext, sub: Subset, frames: Frames, pred_p: np.ndarray,
+               pred_t: np.ndarray, iterations: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Fit B frames each on its own (no smoothness between them), in one batched pass: one
+    L-BFGS state per frame (:func:`monoavatar.fit.batched_lbfgs.minimize_rows`), the energies
+    of all frames evaluated together. ``sub`` may hold points of each frame's own
+    (:class:`Subset`). Returns poses (B, J, 3), translations (B, 3) and the per-frame energy
+    without the flow and contour terms, as :func:`fit_window`."""
+    dtype = frames.keypoints.dtype
+    b = pred_p.shape[0]
+    flow_weight = frames.flow.weight if frames.flow is not None else 0.0
+    contour_weight = frames.contour.weight if frames.contour is not None else 0.0
+    root_ref = lbs.axis_angle_to_matrix(torch.as_tensor(pred_p[:, 0], dtype=dtype))
+
+    def variables(x: Tensor, rows: Tensor) -> Variables:
+        """x (R, 3 + 3 (J − 1) + 3): the root's delta, the body joints, the translation."""
+        return Variables.of(root_ref.index_select(0, rows), x[:, :3],
+                            x[:, 3:-3].reshape(len(rows), -1, 3), x[:, -3:])  # fmt: skip
+
+    def energy(x: Tensor, rows: Tensor) -> Tensor:
+        s, f = (sub, frames) if len(rows) == b else select_frames(sub, frames, rows)
+        terms = energy_terms(ctx, s, variables(x, rows), f)
+        return weighted_energy(ctx, terms, flow_weight, contour_weight)
+
+    start = Variables(pred_p, pred_t, dtype)
+    x = torch.cat([start.delta, start.body.reshape(b, -1), start.translation], 1).detach()
+    if ctx.settings.rigid_iterations:  # the global rotation and translation first
+        body = x[:, 3:-3]
+        rigid = minimize_rows(
+            lambda r, rows: energy(torch.cat([r[:, :3], body[rows], r[:, 3:]], 1), rows),
+            torch.cat([x[:, :3], x[:, -3:]], 1), ctx.settings.rigid_iterations,
+        )
+        x = torch.cat([rigid.x[:, :3], body, rigid.x[:, 3:]], 1)
+    var = variables(minimize_rows(energy, x, iterations).x, torch.arange(b))
     with torch.no_grad():
         e = weighted_energy(ctx, energy_terms(ctx, sub, var, frames))
     p, t = var.numpy()
