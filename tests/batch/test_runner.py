@@ -181,10 +181,11 @@ def test_sigterm_stops_a_batch_started_with_sigint_ignored(tmp_path: Path) -> No
     log = out / "turn" / "log.txt"
     try:
         deadline = time.monotonic() + 120
-        while not log.is_file():
-            assert proc.poll() is None and time.monotonic() < deadline, "no command started"
+        # the command is under way: its first texture is being built (three flow rounds, each
+        # with a shape and a texture, are still to come)
+        while not (log.is_file() and "texture" in log.read_text()):
+            assert proc.poll() is None and time.monotonic() < deadline, "no texture started"
             time.sleep(0.2)
-        time.sleep(10.0)  # the command is under way (it takes about 40 s)
         assert proc.poll() is None
         proc.send_signal(signal.SIGTERM)
         output, _ = proc.communicate(timeout=25)  # well before the 30-s grace of a kill
