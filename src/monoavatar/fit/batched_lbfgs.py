@@ -122,7 +122,6 @@ def minimize_rows(
         slope = torch.where(fallback, -(grad * grad).sum(-1), slope)
         first = (1.0 / grad.abs().sum(-1).clamp_min(1e-30)).clamp(max=1.0)
         t = torch.where(fallback, first, torch.ones_like(first))
-        t = torch.where(done, torch.zeros_like(t), t)
         searching = ~done
         new_x, new_value, new_grad = x.clone(), value.clone(), grad.clone()
         for _ in range(max_backtracks):

@@ -154,7 +154,7 @@ def coverage_energy(projected: Tensor, targets: SilhouetteTargets, sigma: float 
     averaged over samples. Differentiable through the nearest model point. ``points_valid``
     (B, N) bool: only those model points can be the nearest (None: all). (B,)."""
     boundary = targets.boundary.to(projected.dtype)  # (B, P, 2)
-    index = nearest_points(boundary, projected.detach(), points_valid)  # (B, P)
+    index = nearest_points(boundary, projected, points_valid)  # (B, P), not differentiated
     points = torch.gather(projected, 1, index.unsqueeze(-1).expand(-1, -1, 2))
     nearest = ((boundary - points) ** 2).sum(-1) / targets.scale[:, None] ** 2
     valid = targets.boundary_valid.to(projected.dtype)
