@@ -286,3 +286,13 @@ def test_large_video_is_reconstructed_at_max_side_with_its_focal_scaled(
         load_inputs(video, InputSettings(frames=4, focal=500.0, max_side=None))
     assert seen["frames"].images.shape[1:3] == (360, 640)
     assert seen["camera"].K[0, 0] == pytest.approx(500.0)
+
+
+def test_workers_option_reaches_every_threaded_stage(tmp_path: Path) -> None:
+    from monoavatar.cli import _config, build_parser
+
+    parser = build_parser(only="reconstruct")
+    args = parser.parse_args(["reconstruct", "video.mp4", "-o", str(tmp_path / "o"),
+                              "--workers", "3"])  # fmt: skip
+    config = _config(args)
+    assert (config.input.workers, config.texture.workers, config.flow.workers) == (3, 3, 3)

@@ -206,6 +206,7 @@ def _config(args: argparse.Namespace, **options: Any) -> ReconstructConfig:
                 perception=args.perception, poses=getattr(args, "pose_source", "fit"),
                 perception_settings=replace(PerceptionSettings(), grabcut=not args.no_grabcut),
                 max_side=getattr(args, "max_side", _default(InputSettings, "max_side")) or None,
+                workers=workers,
             ),
             device=getattr(args, "device", base.device),
             body_model=getattr(args, "model", base.body_model),
@@ -267,9 +268,10 @@ def _add_reconstruct(p: argparse.ArgumentParser) -> None:
             "refinement by optical flow from the textured avatar to each frame and by the "
             "outline, each followed by the shape and the texture again (0 turns it off)",
             type=int, metavar="R")  # fmt: skip
-    _option(p, "--workers", TextureSettings, "workers", "threads that fit and texture "
-            "key-frames side by side in the flow and texture stages (results vary by float "
-            "rounding between runs, with any count)", type=int, metavar="N")  # fmt: skip
+    _option(p, "--workers", TextureSettings, "workers", "threads that refine the person "
+            "masks while the detectors run, and fit and texture key-frames side by side in the "
+            "flow and texture stages (results vary by float rounding between runs, with any "
+            "count)", type=int, metavar="N")  # fmt: skip
     _option(p, "--model", ReconstructConfig, "body_model",
             "body model: anny or a path to your SMPL .npz/.pkl")  # fmt: skip
     p.add_argument("--fast", action="store_true",

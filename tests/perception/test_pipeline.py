@@ -530,3 +530,27 @@ def test_second_person_search_keeps_the_central_largest() -> None:
         obs = perceive(Frames.from_images(alone), settings=settings,
                        detectors=Detectors(pose=FakePose()))
     assert not obs.multiple_people[0]
+
+
+def test_each_mask_waits_for_the_frames_its_smoothing_reads() -> None:
+    from monoavatar.perception.pipeline import _reach
+
+    # source indices 0 1 2 5 6 10, sigma 1: frame 0 reads up to index 3 (frame 2), ...
+    np.testing.assert_array_equal(_reach(np.array([0, 1, 2, 5, 6, 10]), 1.0), [2, 2, 3, 4, 4, 5])
+    np.testing.assert_array_equal(_reach(np.array([0, 4, 8]), 0.0), [0, 1, 2])
+
+
+def test_the_masks_do_not_depend_on_the_worker_threads(
+    fakes: tuple[FakePose, FakeSegmenter, FakeFace],
+) -> None:
+    pose, _, _ = fakes
+    rng = np.random.default_rng(1)
+    images = blob_frames(6).astype(np.int16)
+    images = np.clip(images + rng.integers(-20, 21, images.shape), 0, 255).astype(np.uint8)
+    frames = Frames.from_images(images)
+    one, three = (perceive(frames, use_cache=False, workers=w,
+                           detectors=Detectors(pose=pose, segmenter=WideSegmenter()))
+                  for w in (1, 3))  # fmt: skip
+    assert one.masks.any()
+    np.testing.assert_array_equal(one.masks, three.masks)
+    np.testing.assert_array_equal(one.keypoints, three.keypoints)

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from concurrent.futures import Future
 from dataclasses import asdict, dataclass, replace
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -27,6 +28,7 @@ from tqdm import tqdm
 from monoavatar.core.camera import PinholeCamera
 from monoavatar.core.errors import format_indices
 from monoavatar.core.landmarks import NUM_BODY_LANDMARKS, NUM_FACE_LANDMARKS
+from monoavatar.core.threads import frame_pool
 from monoavatar.io.frames import Frames
 from monoavatar.io.intrinsics import default_camera
 from monoavatar.perception import cache as cache_mod
@@ -250,13 +252,35 @@ class _Raw:
     world: np.ndarray
 
 
+def _reach(indices: np.ndarray, sigma: float) -> np.ndarray:
+    """(N,) for each frame, the last frame whose probabilities its temporal smoothing reads
+    (source frame indices within 3 sigma; ``indices`` ascending)."""
+    idx = np.asarray(indices, dtype=np.float64)
+    if sigma <= 0 or len(idx) < 2:
+        return np.arange(len(idx))
+    return np.searchsorted(idx, idx + 3.0 * sigma, side="right") - 1
+
+
+def _refined_mask(image: np.ndarray, mask: np.ndarray, settings: PerceptionSettings
+                  ) -> np.ndarray:  # fmt: skip
+    """A thresholded person mask refined: GrabCut at the boundary (when on), small holes
+    filled. Safe to run in a worker thread (OpenCV and numpy only)."""
+    if settings.grabcut:
+        mask = largest_component(grabcut_refine(image, mask, settings.grabcut_band_px))
+    return fill_holes(mask, settings.max_hole_fraction)
+
+
 def _run(
     frames: Frames,
     settings: PerceptionSettings,
     dets: Detectors,
     pre: PrecomputedPerception,
     progress: bool = False,
+    workers: int = 2,
 ) -> _Raw:
+    """The detectors on every frame (this thread, in frame order), each frame's mask finished
+    as soon as the frames its smoothing reads are detected, its refinement (GrabCut) in
+    ``workers`` threads meanwhile, then the face landmarks on the finished masks."""
     n, h, w = len(frames), frames.height, frames.width
     need_pose, _, need_face = _needs(settings, pre)
     if need_pose and dets.pose is None:
@@ -269,9 +293,9 @@ def _run(
     multiple = np.zeros(n, dtype=bool)
     min_area = max(1, int(settings.min_mask_fraction * h * w))
     probs = np.zeros((n, h, w), dtype=np.uint8) if pre.masks is None else None
+    detected = np.zeros_like(keypoints)  # the landmarks as detected, before any re-detection
 
-    images = tqdm(frames.images, desc="perception", unit="frame", disable=not progress)
-    for i, image in enumerate(images):
+    def detect(i: int, image: np.ndarray) -> None:
         result = dets.pose.detect(image) if (need_pose and dets.pose is not None) else None
         if (
             result is not None
@@ -288,56 +312,77 @@ def _run(
             found[i] = True
             if result.world is not None:
                 world[i] = result.world
+        detected[i] = keypoints[i]
         if probs is not None:
             if dets.segmenter is not None:
                 prob = dets.segmenter.segment(image)
             elif result is not None and result.segmentation is not None:
                 prob = result.segmentation
             else:
-                continue
+                return
             probs[i] = np.clip(np.rint(np.asarray(prob, np.float32) * 255.0), 0, 255)
 
-    masks = np.zeros((n, h, w), dtype=bool)
-    face = np.full((n, NUM_FACE_LANDMARKS, 3), np.nan, dtype=np.float32)
-    # which neighbours may be smoothed into each frame, from the landmarks found so far
-    still = [_still_neighbours(keypoints, frames.indices, i, settings) for i in range(n)]
-    for i, image in enumerate(frames.images):
+    def person_mask(i: int, image: np.ndarray) -> np.ndarray:
+        """Frame i's mask before refinement: smoothed over still neighbours, thresholded, one
+        person kept (landmarks detected again where they belong to another person)."""
         if probs is None:
             assert pre.masks is not None
-            mask = np.asarray(pre.masks[i], dtype=bool)
-        else:
-            smoothed = smooth_frame(probs, frames.indices, i, settings.temporal_sigma, still[i])
-            person = smoothed >= settings.mask_threshold * 255.0
-            choice = select_person(person, settings.other_person_fraction, min_area)
-            mask = choice.mask
-            multiple[i] |= choice.num_people > 1
-            if (
-                multiple[i]
-                and pre.keypoints is None
-                and dets.pose is not None
-                and found[i]
-                and people.keypoints_belong_elsewhere(keypoints[i], mask, choice.others)
-            ):
-                again = dets.pose.detect(people.hide_people(image, choice.others, mask))
-                if again is not None:
-                    keypoints[i] = again.keypoints
-                    world[i] = again.world if again.world is not None else np.nan
-                else:
-                    found[i] = False
-            if settings.grabcut:
-                mask = largest_component(grabcut_refine(image, mask, settings.grabcut_band_px))
-            mask = fill_holes(mask, settings.max_hole_fraction)
-        if not found[i] or int(mask.sum()) < min_area:
-            found[i] = False
-            continue
-        masks[i] = mask
-        if pre.face is not None:
-            face[i] = pre.face[i]
-        elif need_face and dets.face is not None:
-            faces = people.detect_face(image, dets.face, keypoints[i])
-            chosen = people.choose_face(faces, keypoints[i], mask)
-            if chosen is not None:
-                face[i] = chosen
+            return np.asarray(pre.masks[i], dtype=bool)
+        still = _still_neighbours(detected, frames.indices, i, settings)
+        smoothed = smooth_frame(probs, frames.indices, i, settings.temporal_sigma, still)
+        person = smoothed >= settings.mask_threshold * 255.0
+        choice = select_person(person, settings.other_person_fraction, min_area)
+        multiple[i] |= choice.num_people > 1
+        if (
+            multiple[i]
+            and pre.keypoints is None
+            and dets.pose is not None
+            and found[i]
+            and people.keypoints_belong_elsewhere(keypoints[i], choice.mask, choice.others)
+        ):
+            again = dets.pose.detect(people.hide_people(image, choice.others, choice.mask))
+            if again is not None:
+                keypoints[i] = again.keypoints
+                world[i] = again.world if again.world is not None else np.nan
+            else:
+                found[i] = False
+        return choice.mask
+
+    reach = _reach(frames.indices, settings.temporal_sigma)
+    refined: list[Future[np.ndarray]] = []
+    masks = np.zeros((n, h, w), dtype=bool)
+    face = np.full((n, NUM_FACE_LANDMARKS, 3), np.nan, dtype=np.float32)
+    with frame_pool(workers) as pool:
+
+        def finish(i: int) -> Future[np.ndarray]:
+            image = frames.images[i]
+            mask = person_mask(i, image)
+            if probs is None:  # given masks are used as they are
+                done: Future[np.ndarray] = Future()
+                done.set_result(mask)
+                return done
+            return pool.submit(_refined_mask, image, mask, settings)
+
+        images = tqdm(frames.images, desc="perception", unit="frame", disable=not progress)
+        for i, image in enumerate(images):
+            detect(i, image)
+            while len(refined) < n and reach[len(refined)] <= i:
+                refined.append(finish(len(refined)))
+        while len(refined) < n:
+            refined.append(finish(len(refined)))
+        for i, image in enumerate(frames.images):
+            mask = refined[i].result()
+            if not found[i] or int(mask.sum()) < min_area:
+                found[i] = False
+                continue
+            masks[i] = mask
+            if pre.face is not None:
+                face[i] = pre.face[i]
+            elif need_face and dets.face is not None:
+                faces = people.detect_face(image, dets.face, keypoints[i])
+                chosen = people.choose_face(faces, keypoints[i], mask)
+                if chosen is not None:
+                    face[i] = chosen
     no_person = ~found
     keypoints[no_person] = 0.0
     face[no_person] = np.nan
@@ -374,6 +419,7 @@ def perceive(
     use_cache: bool = True,
     cache_dir: str | Path | None = None,
     progress: bool = False,
+    workers: int = 2,
 ) -> Observations:
     """Person masks, body and face landmarks (and optionally flow) for every frame.
 
@@ -388,6 +434,8 @@ def perceive(
         use_cache: read and write the on-disk cache.
         cache_dir: cache root (default ``$MONOAVATAR_CACHE`` or ``~/.cache/monoavatar``).
         progress: show a progress bar while the detectors run.
+        workers: threads that refine the masks (GrabCut) while the detectors run; the
+            result does not depend on it.
     Returns:
         Observations for all N frames; frames without a person are flagged in ``no_person``.
     Warns:
@@ -424,7 +472,7 @@ def perceive(
             if detectors is None:
                 owned = dets
             with native_stderr_hidden():  # mediapipe's graphs log as they start, from threads
-                raw = _run(frames, settings, dets, pre, progress)
+                raw = _run(frames, settings, dets, pre, progress, workers)
                 if owned is not None:  # its threads joined while a late line is still hidden
                     owned.close()
                     owned = None

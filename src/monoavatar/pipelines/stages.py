@@ -189,6 +189,7 @@ class InputSettings:
         max_side: videos and image folders whose frames are larger are downscaled so that the
             longer side has this many pixels (a ``--focal`` given for the source is scaled
             with them, a ``camera.json`` rescaled); None keeps the source's size.
+        workers: threads that refine the person masks while the detectors run.
     """
 
     frames: int = 120
@@ -200,8 +201,11 @@ class InputSettings:
     poses: str = "fit"
     perception_settings: PerceptionSettings = field(default_factory=PerceptionSettings)
     max_side: int | None = 1280
+    workers: int = 2
 
     def __post_init__(self) -> None:
+        if self.workers < 1:
+            raise PipelineError(f"--workers must be at least 1, got {self.workers}")
         if self.max_side is not None and not 256 <= self.max_side <= 4096:
             raise PipelineError(f"--max-side must lie in [256, 4096] pixels, got {self.max_side}")
 
@@ -249,7 +253,7 @@ def load_inputs(path: InputPath, settings: InputSettings, *, progress: bool = Fa
             obs = scene.observations
         else:
             obs = perceive(scene.frames, scene.camera, settings.perception_settings,
-                           progress=progress)
+                           progress=progress, workers=settings.workers)
         return Inputs(scene.frames, obs, "synth", scene.ground_truth)
     if settings.poses == "ground-truth":
         raise PipelineError("--poses ground-truth needs a monoavatar synth folder as input")
@@ -261,7 +265,7 @@ def load_inputs(path: InputPath, settings: InputSettings, *, progress: bool = Fa
                                     camera_path=settings.camera)  # fmt: skip
         pre = snap.precomputed if settings.perception != "mediapipe" else None
         obs = perceive(snap.frames, camera, settings.perception_settings, precomputed=pre,
-                       progress=progress)
+                       progress=progress, workers=settings.workers)
         return Inputs(snap.frames, obs, "people-snapshot", None)
     if settings.perception == "ground-truth":
         raise PipelineError(
@@ -298,7 +302,8 @@ def _perceived(frames: Frames, kind: str, settings: InputSettings, progress: boo
     focal = None if settings.focal is None else settings.focal * frames.scale
     camera = resolve_camera(frames.width, frames.height, focal_px=focal,
                             camera_path=settings.camera)  # fmt: skip
-    obs = perceive(frames, camera, settings.perception_settings, progress=progress)
+    obs = perceive(frames, camera, settings.perception_settings, progress=progress,
+                   workers=settings.workers)
     return Inputs(frames, obs, kind, None)
 
 
