@@ -295,4 +295,5 @@ def test_workers_option_reaches_every_threaded_stage(tmp_path: Path) -> None:
     args = parser.parse_args(["reconstruct", "video.mp4", "-o", str(tmp_path / "o"),
                               "--workers", "3"])  # fmt: skip
     config = _config(args)
-    assert (config.input.workers, config.texture.workers, config.flow.workers) == (3, 3, 3)
+    assert (config.input.workers, config.shape.workers, config.texture.workers,
+            config.flow.workers) == (3, 3, 3, 3)

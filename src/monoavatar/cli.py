@@ -215,7 +215,8 @@ def _config(args: argparse.Namespace, **options: Any) -> ReconstructConfig:
             progress=not args.quiet,
             pose=replace(base.pose, height=args.height),
             shape=replace(base.shape, fit_offsets=not getattr(args, "no_offsets", False),
-                          w_face=getattr(args, "face_weight", base.shape.w_face)),
+                          w_face=getattr(args, "face_weight", base.shape.w_face),
+                          workers=workers),
             texture=replace(base.texture, size=getattr(args, "texture_size", base.texture.size),
                             workers=workers,
                             method=getattr(args, "texture_method", base.texture.method)),
@@ -269,9 +270,9 @@ def _add_reconstruct(p: argparse.ArgumentParser) -> None:
             "outline, each followed by the shape and the texture again (0 turns it off)",
             type=int, metavar="R")  # fmt: skip
     _option(p, "--workers", TextureSettings, "workers", "threads that refine the person "
-            "masks while the detectors run, and fit and texture key-frames side by side in the "
-            "flow and texture stages (results vary by float rounding between runs, with any "
-            "count)", type=int, metavar="N")  # fmt: skip
+            "masks while the detectors run, and match, fit and texture key-frames side by side "
+            "in the shape, flow and texture stages (results vary by float rounding between "
+            "runs, with any count)", type=int, metavar="N")  # fmt: skip
     _option(p, "--model", ReconstructConfig, "body_model",
             "body model: anny or a path to your SMPL .npz/.pkl")  # fmt: skip
     p.add_argument("--fast", action="store_true",

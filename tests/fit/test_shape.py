@@ -218,6 +218,11 @@ def test_unposed_rays_touch_the_true_canonical_surface(anny32):
     # the lines within a vertex spacing (the tangential part of the point-to-line distance)
     assert np.median(plane) < 1.5e-3 and np.mean(plane < 5e-3) > 0.9
     assert np.median(line) < 6e-3
+    # matched in threads, chunk by chunk: the same rays in the same order
+    threaded, _ = silhouette_correspondences(body, canonical, transforms, samples, camera,
+                                             chunk=2, workers=3)  # fmt: skip
+    for name in ("vertex_ids", "moment", "direction", "plane_normal", "frame"):
+        np.testing.assert_array_equal(getattr(threaded, name), getattr(rays, name))
     # a ray unposed with the wrong frame's pose misses by centimetres
     wrong, _ = silhouette_correspondences(body, canonical, transforms[[1, 2, 0]], samples, camera)
     assert np.median(np.abs(wrong.plane_distances(v))) > 5 * np.median(plane)

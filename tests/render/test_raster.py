@@ -346,3 +346,21 @@ def test_invalid_settings_and_camera() -> None:
         RasterSettings(near=0.0)
     with pytest.raises(ValueError, match="PinholeCamera"):
         rasterize(np.zeros((3, 3)), np.array([[0, 1, 2]]), "camera")  # type: ignore[arg-type]
+
+
+def test_fragments_from_face_ids_give_back_the_rasterised_fragments() -> None:
+    from monoavatar.render import fragments_from_face_ids
+
+    mesh = sphere_and_occluder()
+    camera = look_at_camera(np.array([0.3, 0.2, 0.0]), np.array([0.0, 0.0, 3.0]), 90.0, 48, 40)
+    frags = rasterize(mesh.vertices, mesh.faces, camera)
+    again = fragments_from_face_ids(mesh.vertices, mesh.faces, camera, frags.face_id.numpy())
+    assert frags.mask.sum() > 100
+    for a, b in ((frags.face_id, again.face_id), (frags.bary, again.bary),
+                 (frags.depth, again.depth)):  # fmt: skip
+        assert torch.equal(a, b)
+    with pytest.raises(ValueError, match="face_id must have shape"):
+        fragments_from_face_ids(mesh.vertices, mesh.faces, camera, np.zeros((4, 4), np.int64))
+    with pytest.raises(ValueError, match="faces"):
+        fragments_from_face_ids(mesh.vertices, mesh.faces, camera,
+                                np.full((40, 48), len(mesh.faces)))  # fmt: skip

@@ -27,6 +27,7 @@ from torch import Tensor
 from monoavatar.body import BodyModel
 from monoavatar.core.camera import PinholeCamera
 from monoavatar.core.geometry import vertex_normals
+from monoavatar.core.threads import frame_pool
 
 
 @dataclass(frozen=True)
@@ -314,6 +315,7 @@ def silhouette_correspondences(
     min_dot: float = 0.5,
     shift_sigma: float | None = None,
     chunk: int = 8,
+    workers: int = 1,
 ) -> tuple[CanonicalRays, np.ndarray]:
     """Pose a canonical mesh into every frame, match the observed boundary samples to its
     contour vertices and unpose the matched rays (the correspondence step of Sec. B.3.3).
@@ -335,6 +337,8 @@ def silhouette_correspondences(
         shift_sigma: robust scale (metres) of the per-frame translation correction, or
             None for no correction.
         chunk: frames posed at once (bounds memory).
+        workers: threads that match the frames of a chunk side by side (the result does
+            not depend on it).
     Returns:
         :class:`CanonicalRays` over all frames, and the (F, 3) world translations by which
         the frames were corrected (zeros without ``shift_sigma``).
@@ -350,40 +354,46 @@ def silhouette_correspondences(
     k_inv = np.linalg.inv(camera.K)
     tf_all = transforms.detach().cpu().double().numpy()
     parts: list[CanonicalRays] = []
-    for start in range(0, n_frames, chunk):
-        stop = min(start + chunk, n_frames)
-        tf = transforms[start:stop].to(canonical.dtype)
-        rest = canonical[None].expand(stop - start, -1, -1)
-        correctives = None
-        if rotations is not None:
-            correctives = body.pose_correctives(rotations[start:stop].to(canonical.dtype))
-            if correctives is not None:
-                rest = rest + correctives
-        with torch.no_grad():
-            # blended transforms once for points and normals; the normals are rotated by the
-            # blended linear part (exact for rigid parts, close enough to find contours)
-            blend = torch.einsum("vj,bjmn->bvmn", weights, tf[:, :, :3, :])
-            posed = (blend[..., :3] @ rest.unsqueeze(-1)).squeeze(-1) + blend[..., 3]
-            normals = (blend[..., :3] @ rest_normals.unsqueeze(-1)).squeeze(-1)
-            normals = normals / normals.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-        posed_np = posed.double().numpy()
-        normals_np = normals.double().numpy()
-        for k in range(stop - start):
-            f = start + k
-            s = samples[f]
-            ids, pix, dirs = contour_candidates(posed_np[k], normals_np[k], camera, max_cos)
-            si, ci, dist = match_boundary(s, pix, dirs, float(radius[f]), normal_weight, min_dot)
-            if len(si) == 0:
-                continue
-            vids = ids[ci]
-            rays = pixel_directions(camera, k_inv, s.points[si])
-            planes = _silhouette_planes(camera, s.points[si], s.normals[si])
-            if shift_sigma is not None:
-                shifts[f] = frame_shift(
-                    posed_np[k][vids], planes, centre, camera.R[:2], shift_sigma
-                )
-            corr = None if correctives is None else correctives[k]
-            # posing then shifting by Δt equals unposing rays shifted by −Δt
-            m, n, p = unpose_lines(body, centre - shifts[f], rays, planes, vids, tf_all[f], corr)
-            parts.append(CanonicalRays(vids, m, n, p, np.full(len(vids), f, np.int64), dist))
+
+    def match(f: int, posed: np.ndarray, normals: np.ndarray, corr: Tensor | None
+              ) -> CanonicalRays | None:  # fmt: skip
+        """Frame f's rays, matched on its posed mesh (V, 3) with normals (V, 3), unposed;
+        sets ``shifts[f]``."""
+        s = samples[f]
+        ids, pix, dirs = contour_candidates(posed, normals, camera, max_cos)
+        si, ci, dist = match_boundary(s, pix, dirs, float(radius[f]), normal_weight, min_dot)
+        if len(si) == 0:
+            return None
+        vids = ids[ci]
+        rays = pixel_directions(camera, k_inv, s.points[si])
+        planes = _silhouette_planes(camera, s.points[si], s.normals[si])
+        if shift_sigma is not None:
+            shifts[f] = frame_shift(posed[vids], planes, centre, camera.R[:2], shift_sigma)
+        # posing then shifting by Δt equals unposing rays shifted by −Δt
+        m, n, p = unpose_lines(body, centre - shifts[f], rays, planes, vids, tf_all[f], corr)
+        return CanonicalRays(vids, m, n, p, np.full(len(vids), f, np.int64), dist)
+
+    with frame_pool(workers) as pool:
+        for start in range(0, n_frames, chunk):
+            stop = min(start + chunk, n_frames)
+            tf = transforms[start:stop].to(canonical.dtype)
+            rest = canonical[None].expand(stop - start, -1, -1)
+            correctives = None
+            if rotations is not None:
+                correctives = body.pose_correctives(rotations[start:stop].to(canonical.dtype))
+                if correctives is not None:
+                    rest = rest + correctives
+            with torch.no_grad():
+                # blended transforms once for points and normals; the normals are rotated by
+                # the blended linear part (exact for rigid parts, close enough to find
+                # contours)
+                blend = torch.einsum("vj,bjmn->bvmn", weights, tf[:, :, :3, :])
+                posed = (blend[..., :3] @ rest.unsqueeze(-1)).squeeze(-1) + blend[..., 3]
+                normals = (blend[..., :3] @ rest_normals.unsqueeze(-1)).squeeze(-1)
+                normals = normals / normals.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+            posed_np = posed.double().numpy()
+            normals_np = normals.double().numpy()
+            corr = [None] * (stop - start) if correctives is None else list(correctives)
+            found = pool.map(match, range(start, stop), posed_np, normals_np, corr)
+            parts.extend(r for r in found if r is not None)
     return CanonicalRays.concatenate(parts), shifts

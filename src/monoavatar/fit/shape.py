@@ -137,6 +137,8 @@ class ShapeSettings:
             (absorbs translation errors of the poses; see
             :func:`monoavatar.fit.rays.silhouette_correspondences`).
         chunk: frames posed at once in the correspondence search.
+        workers: threads that match and unpose the frames of a chunk side by side (the
+            result does not depend on it).
         threads: torch intra-op threads during the fit (restored afterwards); None leaves
             them. The fit is many small tensor operations, for which threads cost more than
             they save.
@@ -179,6 +181,7 @@ class ShapeSettings:
     blur: float = 1.5
     refine_translations: bool = True
     chunk: int = 8
+    workers: int = 2
     threads: int | None = 1
 
     def __post_init__(self) -> None:
@@ -227,8 +230,10 @@ class ShapeSettings:
                 raise ShapeFitError(f"unknown region {name!r}; regions are {list(REGIONS)}")
             if value < 0:
                 raise ShapeFitError(f"region weight of {name!r} must be >= 0, got {value}")
-        if self.chunk < 1:
-            raise ShapeFitError(f"chunk must be >= 1, got {self.chunk}")
+        if self.chunk < 1 or self.workers < 1:
+            raise ShapeFitError(
+                f"chunk and workers must be >= 1, got {self.chunk}, {self.workers}"
+            )
         if self.threads is not None and self.threads < 1:
             raise ShapeFitError(f"threads must be >= 1 or None, got {self.threads}")
 
@@ -484,6 +489,7 @@ def _fit(
             min_dot=settings.min_normal_dot,
             shift_sigma=sigma if settings.refine_translations else None,
             chunk=settings.chunk,
+            workers=settings.workers,
         )
         shift_total += shifts
         n_sil = len(rays)

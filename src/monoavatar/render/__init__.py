@@ -11,7 +11,12 @@ at (col + 0.5, row + 0.5), metres, glTF UVs ((0, 0) = top-left of the texture, v
 
 from monoavatar.render.flow import RenderedFlow, flow_energy, render_flow
 from monoavatar.render.interpolate import interpolate, interpolate_masked, scatter_masked
-from monoavatar.render.raster import Fragments, RasterSettings, rasterize
+from monoavatar.render.raster import (
+    Fragments,
+    RasterSettings,
+    fragments_from_face_ids,
+    rasterize,
+)
 from monoavatar.render.renders import (
     render_depth,
     render_face_labels,
@@ -42,6 +47,7 @@ __all__ = [
     "SampledLighting",
     "directional_light_sh",
     "flow_energy",
+    "fragments_from_face_ids",
     "interpolate",
     "interpolate_masked",
     "rasterize",

@@ -34,7 +34,7 @@ from torch import Tensor
 
 from monoavatar.core.camera import PinholeCamera
 
-__all__ = ["Fragments", "RasterSettings", "rasterize"]
+__all__ = ["Fragments", "RasterSettings", "fragments_from_face_ids", "rasterize"]
 
 # Bounding-box side lengths (pixels) that triangles are grouped into; a triangle whose box is
 # w x h pixels is evaluated on the smallest listed size >= w times the smallest >= h.
@@ -414,6 +414,28 @@ def rasterize(
     np.minimum.at(face_id, pixel, face)
     face_id[face_id == none] = -1
     return _resolve(pz, f, face_id.reshape(height, width))
+
+
+def fragments_from_face_ids(
+    vertices: Tensor | np.ndarray,
+    faces: Tensor | np.ndarray,
+    camera: PinholeCamera,
+    face_id: np.ndarray,
+) -> Fragments:
+    """The :class:`Fragments` :func:`rasterize` gives for these vertices, faces and camera,
+    from its ``face_id`` image alone (H, W) int64 (-1: background): the barycentrics and
+    depths computed again, without the visibility search (for a mesh rasterised before at the
+    same vertices, e.g. with only its face ids kept)."""
+    _check_camera(camera)
+    v = _as_vertices(vertices)
+    f = _as_faces(faces, v.shape[0])
+    face_id = np.asarray(face_id, dtype=np.int64)
+    if face_id.shape != (camera.height, camera.width):
+        raise ValueError(f"face_id must have shape ({camera.height}, {camera.width}), got "
+                         f"{face_id.shape}")  # fmt: skip
+    if face_id.size and face_id.max() >= f.shape[0]:
+        raise ValueError(f"face_id indexes {face_id.max()} but there are {f.shape[0]} faces")
+    return _resolve(_to_camera_and_pixels(v, camera), f, face_id)
 
 
 # -- slow reference -------------------------------------------------------------------------

@@ -45,6 +45,7 @@ from monoavatar.core.threads import frame_pool
 from monoavatar.perception.flow import DISFlow
 from monoavatar.render import (
     Fragments,
+    fragments_from_face_ids,
     rasterize,
     render_over_image,
     sh_shading,
@@ -518,11 +519,26 @@ def build_texture(
     graph = None
     image = np.zeros((work, work, 3), np.float32)  # the texture so far; round 0 fills it
 
+    # each frame's visible faces, (pixel, face) int32, kept from round 0 for the registration
+    # rounds (same vertices: only the barycentrics and depths are computed again)
+    seen_faces: list[tuple[np.ndarray, np.ndarray] | None] = [None] * n_frames
+
     def frame_views(i: int, so_far: Tensor | None) -> tuple[_Views, float]:
         """Frame i's samples, registered by the flow from ``so_far`` rendered (step 6), and
         the frame's silhouette error ``1 − IoU`` (rendered mesh vs person mask)."""
         sh_i = None if lighting is None else lighting[i]
-        frags = rasterize(verts[i], f, cams[i])
+        kept = seen_faces[i]
+        if kept is None:
+            frags = rasterize(verts[i], f, cams[i])
+            if settings.register_rounds > 0:
+                ids = frags.face_id.numpy().ravel()
+                pixel = np.flatnonzero(ids >= 0).astype(np.int32)
+                seen_faces[i] = (pixel, ids[pixel].astype(np.int32))
+        else:
+            face_id = np.full(cams[i].height * cams[i].width, -1, np.int64)
+            face_id[kept[0]] = kept[1]
+            frags = fragments_from_face_ids(verts[i], f, cams[i],
+                                            face_id.reshape(cams[i].height, cams[i].width))
         flow = None
         if so_far is not None:  # step 6: where the texture so far lies in this frame
             render = render_over_image(verts[i], f, frags, t, fu, so_far, imgs[i], sh=sh_i)
