@@ -60,7 +60,7 @@ def _option(p: argparse.ArgumentParser, flag: str, cls: type, name: str, help: s
 
 
 def _add_synth(p: argparse.ArgumentParser) -> None:
-    from monoavatar.synth.options import BACKGROUNDS, CLOTHING, KINDS, NOISE_LEVELS
+    from monoavatar.synth.options import BACKGROUNDS, CAPTURES, CLOTHING, KINDS, NOISE_LEVELS
     from monoavatar.synth.scene import SynthConfig
 
     p.description = ("Render a person with known 3D shape, clothing, texture and motion through "
@@ -85,6 +85,10 @@ def _add_synth(p: argparse.ArgumentParser) -> None:
     _option(p, "--texture-size", SynthConfig, "texture_size", "texture pixels", type=int)
     _option(p, "--posed-every", SynthConfig, "posed_every",
             "write the posed ground-truth mesh every N frames", type=int)  # fmt: skip
+    _option(p, "--capture", SynthConfig, "capture", "how it is filmed: studio (a level camera "
+            "aimed at the person, one even turn) or phone (rolled and off-centre, an uneven "
+            "turn, exposure drift, motion blur, a coarser H.264 video)",
+            choices=list(CAPTURES))  # fmt: skip
     p.set_defaults(run=_run_synth)
 
 
@@ -94,7 +98,7 @@ def _run_synth(args: argparse.Namespace) -> int:
     config = SynthConfig(kind=args.kind, frames=args.frames, seed=args.seed, width=args.size[0],
                          height=args.size[1], clothing=args.clothing, noise=args.noise,
                          background=args.background, texture_size=args.texture_size,
-                         posed_every=args.posed_every)  # fmt: skip
+                         posed_every=args.posed_every, capture=args.capture)  # fmt: skip
     summary = generate(args.output, config)
     print(
         f"wrote {summary.frames} frames of {summary.subjects} subject(s) to {summary.folder} "

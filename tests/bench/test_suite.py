@@ -115,9 +115,20 @@ def test_scene_is_reused_when_valid_and_replaced_when_not(tiny_scene, anny_local
                          texture_size=subject.texture_size)  # fmt: skip
     assert not scene_is_valid(folder, other)  # another seed: not this scene
 
-    # a stale copy (other settings) in the cache folder is regenerated
+    # a scene made before the capture profiles (no "capture" recorded) was a studio take
     import shutil
 
+    older = tmp_path / "older"
+    shutil.copytree(folder, older)
+    info = json.loads((older / "scene.json").read_text())
+    assert info["config"].pop("capture") == "studio"
+    (older / "scene.json").write_text(json.dumps(info))
+    assert scene_is_valid(older, subject)
+    info["config"]["capture"] = "phone"
+    (older / "scene.json").write_text(json.dumps(info))
+    assert not scene_is_valid(older, subject)
+
+    # a stale copy (other settings) in the cache folder is regenerated
     stale = tmp_path / subject.name
     shutil.copytree(folder, stale)
     info = json.loads((stale / "scene.json").read_text())

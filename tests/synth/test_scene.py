@@ -245,3 +245,107 @@ def test_painted_eyes_sit_on_the_subjects_own_eyes(anny_local):
         eye_colours = np.array([[0.92, 0.92, 0.9], [0.25, 0.18, 0.12]])  # white, pupil
         gap = np.abs(colour[:, None] - eye_colours[None]).max(axis=2).min(axis=1)
         assert (gap < 0.01).all(), colour
+
+
+# -- capture profiles ---------------------------------------------------------------------
+
+
+def test_uneven_progress_never_runs_backwards_and_ends_one_turn_on():
+    from monoavatar.body.motion import uneven_progress
+
+    n = 400
+    p = uneven_progress(n, 0.35, np.random.default_rng(2))
+    speed = np.diff(p) * n  # frames per turn → relative speed, mean 1
+    assert p[0] == 0.0 and np.all(speed > 0)
+    assert 0.65 - 1e-3 <= speed.min() and speed.max() <= 1.35 + 1e-3
+    assert speed.max() - speed.min() > 0.3  # it does vary
+    # p(1) = 1: the sinusoids' integrals vanish over whole periods
+    assert p[-1] + (p[-1] - p[-2]) == pytest.approx(1.0, abs=2e-3)
+    np.testing.assert_array_equal(uneven_progress(5, 0.0, np.random.default_rng(0)),
+                                  np.arange(5) / 5)  # fmt: skip
+    with pytest.raises(ValueError, match="wobble"):
+        uneven_progress(5, 1.0, np.random.default_rng(0))
+
+
+def test_a_rolled_off_centre_camera_shows_the_person_rolled_and_shifted():
+    rng = lambda: np.random.default_rng(7)  # noqa: E731 - the same draws for every camera
+    level = scene_mod.make_camera(rng(), 320, 240)
+    roll = np.deg2rad(4.0)
+    rolled = scene_mod.make_camera(rng(), 320, 240, roll=roll)
+    # rolling the camera turns the whole image by the roll about the principal point
+    points = torch.tensor([[0.0, 0.0, 0.0], [0.1, 1.0, 0.2], [-0.3, -0.8, 0.1]],
+                          dtype=torch.float64)  # fmt: skip
+    p_level = level.project(points)[0].numpy() - level.K[:2, 2]
+    p_rolled = rolled.project(points)[0].numpy() - rolled.K[:2, 2]
+    c, s = np.cos(roll), np.sin(roll)
+    np.testing.assert_allclose(p_rolled, p_level @ np.array([[c, -s], [s, c]]).T, atol=1e-9)
+    # aimed beside the person: they appear about the asked fraction of the image right of
+    # and above where a camera aimed at them shows them, the focal length shortened to keep
+    # the margin
+    moved = scene_mod.make_camera(rng(), 320, 240, shift=(0.1, -0.03))
+    shift = (moved.project(points[:1])[0].numpy()[0] - moved.K[:2, 2]
+             - p_level[0] * moved.K[0, 0] / level.K[0, 0]) / np.array([320, 240])  # fmt: skip
+    assert shift[0] == pytest.approx(0.1, abs=0.01) and shift[1] == pytest.approx(-0.03, abs=0.01)
+    assert moved.K[0, 0] < level.K[0, 0]
+
+
+def test_phone_take_blurs_drifts_and_encodes_coarser(anny_local, tmp_path):
+    from monoavatar.synth.options import CAPTURES
+
+    studio = scene_mod._phone_take(CAPTURES["studio"], 50, np.random.default_rng(0))
+    assert studio.turns == 1.0 and studio.progress is None and studio.roll == 0.0
+    assert studio.shift == (0.0, 0.0) and np.all(studio.gain == 1.0)
+    phone = scene_mod._phone_take(CAPTURES["phone"], 50, np.random.default_rng(0))
+    assert 0.85 <= phone.turns <= 1.15 and abs(phone.roll) <= np.deg2rad(4.0)
+    assert np.all(np.abs(phone.gain - 1.0) <= 0.12 + 1e-6) and np.ptp(phone.gain) > 0.01
+
+    out = tmp_path / "phone"
+    generate(out, SynthConfig(kind="turnaround", frames=6, seed=3, noise="none",
+                              capture="phone", **SMALL), body=anny_local, progress=False)
+    info = json.loads((out / "scene.json").read_text())
+    assert info["config"]["capture"] == "phone" and info["capture"]["video_crf"] == 30.0
+    # motion blur: the frame is the mean of renders over the shutter, so it differs from the
+    # sharp render near the moving outline only (the exact mask is the sharp render's)
+    from monoavatar.body.motion import turnaround
+
+    poses = turnaround(anny_local, 120, np.random.default_rng(1))
+    still = np.zeros((120, 3))
+    camera = PinholeCamera.load_json(out / "camera.json")
+    subject = scene_mod.build_subject(
+        anny_local, scene_mod.sample_subject(np.random.default_rng(3), anny_local, None), 128)
+    background = np.zeros((160, 160, 3), np.float32)
+    sh = np.load(out / "gt" / "params.npz")["sh"][0]
+    sharp = scene_mod.render_frame(anny_local, subject, poses[30], still[30], camera, sh,
+                                   background)  # fmt: skip
+    blurred = scene_mod._exposed(sharp["image"], anny_local, subject, poses, still, 30, 0.5,
+                                 camera, sh, background)  # fmt: skip
+    moved = np.abs(blurred - sharp["image"]).max(-1) > 2e-3
+    assert moved.any() and moved.sum() < 0.5 * sharp["mask"].sum()
+    frozen = np.repeat(poses[30:31], 120, 0)
+    same = scene_mod._exposed(sharp["image"], anny_local, subject, frozen, still, 30, 0.5,
+                              camera, sh, background)  # fmt: skip
+    np.testing.assert_allclose(same, sharp["image"], atol=1e-6)
+
+
+def test_a_higher_rate_factor_makes_a_smaller_video(tmp_path):
+    from monoavatar.io.export_mesh import write_mp4
+
+    rng = np.random.default_rng(0)
+    frames = [np.clip(rng.normal(128, 40, (64, 64, 3)), 0, 255).astype(np.uint8)
+              for _ in range(4)]  # fmt: skip
+    write_mp4(tmp_path / "fine.mp4", frames, crf=18)
+    write_mp4(tmp_path / "coarse.mp4", frames, crf=35)
+    assert (tmp_path / "coarse.mp4").stat().st_size < 0.7 * (tmp_path / "fine.mp4").stat().st_size
+    with av.open(str(tmp_path / "coarse.mp4")) as container:
+        assert sum(1 for _ in container.decode(video=0)) == 4
+
+
+def test_cli_capture_option(tmp_path, capsys):
+    args = ["--size", "96", "96", "--texture-size", "64", "--frames", "2"]
+    assert main(["synth", "turnaround", "-o", str(tmp_path / "t"), *args, "--capture",
+                 "phone"]) == 0  # fmt: skip
+    assert json.loads((tmp_path / "t" / "scene.json").read_text())["config"]["capture"] == "phone"
+    with pytest.raises(SystemExit):
+        main(["synth", "turnaround", "-o", str(tmp_path / "u"), *args, "--capture", "cinema"])
+    with pytest.raises(SynthError, match="unknown capture"):
+        SynthConfig(capture="cinema").validate()

@@ -142,6 +142,7 @@ class BenchSubject:
             "texture_size": self.texture_size,
             "fps": 30.0,
             "posed_every": 10,
+            "capture": "studio",
         }
 
     def to_dict(self) -> dict[str, object]:
@@ -248,7 +249,8 @@ def scene_is_valid(folder: Path, subject: BenchSubject) -> bool:
         return False
     if info.get("format") != FORMAT:
         return False
-    if info.get("config") != subject.synth_settings():
+    # scenes made before the capture profiles were studio takes
+    if {"capture": "studio", **info.get("config", {})} != subject.synth_settings():
         return False
     for sub in ("frames", "masks"):
         if len(list((folder / sub).glob("*.png"))) != subject.frames:

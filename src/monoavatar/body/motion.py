@@ -17,13 +17,17 @@ def _set(pose: np.ndarray, body: BodyModel, joint: str, axis: int,
     pose[:, body.joint_index(joint), axis] += angle
 
 
-def turnaround(body: BodyModel, frames: int, rng: np.random.Generator) -> np.ndarray:
-    """A person in a rough A-pose turning once about the vertical axis (People-Snapshot-like,
-    Sec. B.4.2), with small natural pose variation. Returns (N, J, 3)."""
+def turnaround(body: BodyModel, frames: int, rng: np.random.Generator, turns: float = 1.0,
+               progress: np.ndarray | None = None) -> np.ndarray:  # fmt: skip
+    """A person in a rough A-pose turning ``turns`` times about the vertical axis
+    (People-Snapshot-like, Sec. B.4.2), with small natural pose variation. ``progress`` (N,)
+    non-decreasing in [0, 1): how far through the turn each frame is (None: evenly, frame i
+    at i / N; :func:`uneven_progress` for a varying speed). Returns (N, J, 3)."""
     t = np.arange(frames) / max(frames, 1)
+    turned = t if progress is None else np.asarray(progress, dtype=np.float64)
     pose = np.zeros((frames, body.num_joints, 3))
     start = rng.uniform(-0.2, 0.2)
-    _set(pose, body, "pelvis", 1, start + 2 * np.pi * t)
+    _set(pose, body, "pelvis", 1, start + 2 * np.pi * turns * turned)
     for j in range(1, body.num_joints):  # slow wobble of a few degrees
         amp = rng.uniform(0.01, 0.05, 3)
         phase = rng.uniform(0, 2 * np.pi, 3)
@@ -33,6 +37,23 @@ def turnaround(body: BodyModel, frames: int, rng: np.random.Generator) -> np.nda
     _set(pose, body, "shoulder_l", 2, abduct + 0.05 * np.sin(2 * np.pi * t))
     _set(pose, body, "shoulder_r", 2, -abduct - 0.05 * np.sin(2 * np.pi * t))
     return pose
+
+
+def uneven_progress(frames: int, wobble: float, rng: np.random.Generator) -> np.ndarray:
+    """(N,) how far through a turn frame i is when the turning speed varies: i / N warped by
+    ``p(t) = t + Σ_k a_k sin(2π k t + φ_k) / (2π k) − (the same at 0)`` over k = 1, 2 with
+    ``|a_1| + |a_2| = wobble`` (< 1), so the speed ``1 + Σ a_k cos(…)`` stays within
+    ``1 ± wobble`` of the mean and the progress never runs backwards."""
+    if not 0.0 <= wobble < 1.0:
+        raise ValueError(f"wobble must lie in [0, 1), got {wobble}")
+    t = np.arange(frames) / max(frames, 1)
+    share = rng.uniform(0.3, 0.7)
+    amplitude = wobble * np.array([share, 1.0 - share]) * rng.choice([-1.0, 1.0], 2)
+    phase = rng.uniform(0, 2 * np.pi, 2)
+    out = t.copy()
+    for k, (a, phi) in enumerate(zip(amplitude, phase, strict=True), start=1):
+        out += a * (np.sin(2 * np.pi * k * t + phi) - np.sin(phi)) / (2 * np.pi * k)
+    return out
 
 
 def free_motion(body: BodyModel, frames: int, rng: np.random.Generator, fps: float = 30.0):

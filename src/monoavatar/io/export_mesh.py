@@ -71,15 +71,19 @@ def write_ply(path: str | Path, vertices: np.ndarray, faces: np.ndarray) -> None
         fh.write(face_rec.tobytes())
 
 
-def write_mp4(path: str | Path, frames: Sequence[np.ndarray], fps: float = 30.0) -> None:
+def write_mp4(path: str | Path, frames: Sequence[np.ndarray], fps: float = 30.0,
+              crf: float | None = None) -> None:  # fmt: skip
     """Encode RGB uint8 frames (H, W, 3), H and W even, as H.264 (MPEG-4 part 2 if H.264 is
-    unavailable)."""
+    unavailable); ``crf``: H.264's constant rate factor (0 lossless … 51; None: the
+    encoder's default, 23), higher is smaller and coarser."""
     import av
 
     with atomic_path(path) as tmp:
         with av.open(str(tmp), mode="w", format="mp4") as container:
             try:
                 stream = container.add_stream("libx264", rate=round(fps))
+                if crf is not None:
+                    stream.options = {"crf": f"{crf:g}"}
             except (av.error.FFmpegError, ValueError):  # pragma: no cover - build dependent
                 stream = container.add_stream("mpeg4", rate=round(fps))
             stream.height, stream.width = frames[0].shape[:2]

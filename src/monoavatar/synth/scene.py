@@ -18,6 +18,13 @@ Output folder::
     scene.json                 all of the above with units
 
 Pixel origin: the top-left corner of the top-left pixel.
+
+How it is filmed follows a capture profile (:data:`~monoavatar.synth.options.CAPTURES`,
+``SynthConfig.capture``): ``studio`` (a level camera aimed at the person, one even turn) or
+``phone`` (:class:`PhoneTake`: rolled and off-centre, an uneven turn, exposure drift, motion
+blur, a coarser video). The profile draws from a random stream of its own, so a studio scene is
+the same as before the profiles existed. The masks, keypoints and meshes are those of the
+frame's own instant (the middle of the shutter).
 """
 
 from __future__ import annotations
@@ -33,13 +40,21 @@ from PIL import Image
 from tqdm import tqdm
 
 from monoavatar.body import MEDIAPIPE_LANDMARKS, BodyModel, lbs, load_body_model
-from monoavatar.body.motion import free_motion, gait, standing_pose, turnaround
+from monoavatar.body.motion import free_motion, gait, standing_pose, turnaround, uneven_progress
 from monoavatar.core.camera import PinholeCamera
 from monoavatar.core.errors import MonoavatarError
 from monoavatar.core.files import atomic_write_npz, staged_folder
 from monoavatar.io.export_mesh import write_mp4, write_obj, write_ply
 from monoavatar.render import rasterize, render_textured, sample_sh_lighting
-from monoavatar.synth.options import BACKGROUNDS, CLOTHING, FORMAT, KINDS, NOISE_LEVELS
+from monoavatar.synth.options import (
+    BACKGROUNDS,
+    CAPTURES,
+    CLOTHING,
+    FORMAT,
+    KINDS,
+    NOISE_LEVELS,
+    Capture,
+)
 from monoavatar.synth.subjects import Subject, build_subject, sample_subject
 
 _LEFT_HIP = MEDIAPIPE_LANDMARKS.index("left_hip")
@@ -65,6 +80,7 @@ class SynthConfig:
     texture_size: int = 1024
     fps: float = 30.0
     posed_every: int = 10
+    capture: str = "studio"
 
     def validate(self) -> None:
         if self.kind not in KINDS:
@@ -90,6 +106,8 @@ class SynthConfig:
             raise SynthError(f"unknown background {self.background!r}; choose from {BACKGROUNDS}")
         if self.posed_every < 1:
             raise SynthError("posed_every must be at least 1")
+        if self.capture not in CAPTURES:
+            raise SynthError(f"unknown capture {self.capture!r}; choose from {list(CAPTURES)}")
 
 
 @dataclass
@@ -105,19 +123,35 @@ class SceneSummary:
 def make_camera(
     rng: np.random.Generator, width: int, height: int, reach: float = 1.15,
     distance_range: tuple[float, float] = (2.2, 3.0), path: np.ndarray | None = None,
+    roll: float = 0.0, shift: tuple[float, float] = (0.0, 0.0),
 ) -> PinholeCamera:
     """A fixed camera ``distance_range`` metres in front of the person (who faces +Z at the
     origin), at about chest height, with a focal length that keeps everything within ``reach``
     metres of the origin (vertically) inside the image with a margin, and, when the person moves
-    along ``path`` (N, 3) metres, everything within 0.5 m of it (sideways) too."""
+    along ``path`` (N, 3) metres, everything within 0.5 m of it (sideways) too. ``shift``
+    (x, y): the person this fraction of the image's width and height right of and below the
+    centre (the camera aimed beside them, the focal length shortened to keep the margin);
+    ``roll``: the camera turned by this many radians about its line of sight."""
     distance = rng.uniform(*distance_range)
     path = np.zeros((1, 3)) if path is None else np.asarray(path, dtype=np.float64)
     depth = distance - path[:, 2] - 0.4  # the nearest the body's front comes, per frame
-    focal = min(float(np.min(0.44 * height * depth / reach)),
-                float(np.min(0.44 * width * depth / (np.abs(path[:, 0]) + 0.5))))  # fmt: skip
+    room_x, room_y = 0.44 - abs(shift[0]), 0.44 - abs(shift[1])
+    focal = min(float(np.min(room_y * height * depth / reach)),
+                float(np.min(room_x * width * depth / (np.abs(path[:, 0]) + 0.5))))  # fmt: skip
     eye = np.array([rng.uniform(-0.1, 0.1), rng.uniform(0.0, 0.25), distance])
-    return PinholeCamera.look_at(eye, np.array([0.0, -0.05, 0.0]), np.array([0, 1.0, 0]),
-                                 focal, width, height)  # fmt: skip
+    target = np.array([0.0, -0.05, 0.0])
+    up = np.array([0, 1.0, 0])
+    if shift != (0.0, 0.0):  # aim beside the person: they appear shifted the other way
+        base = PinholeCamera.look_at(eye, target, up, focal, width, height)
+        aside = np.array([shift[0] * width, shift[1] * height]) * distance / focal
+        target = target - base.R[0] * aside[0] - base.R[1] * aside[1]
+    camera = PinholeCamera.look_at(eye, target, up, focal, width, height)
+    if roll == 0.0:
+        return camera
+    c, s = np.cos(roll), np.sin(roll)
+    turn = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return PinholeCamera(K=camera.K, R=turn @ camera.R, t=turn @ camera.t, width=width,
+                         height=height)  # fmt: skip
 
 
 def make_background(kind: str, rng: np.random.Generator, width: int, height: int) -> np.ndarray:
@@ -183,6 +217,61 @@ def detector_keypoints(exact: np.ndarray, jitter_px: float, rng: np.random.Gener
     if known is not None:
         out[..., ~np.asarray(known, dtype=bool), :] = 0.0
     return out
+
+
+@dataclass(frozen=True)
+class PhoneTake:
+    """What a capture profile (:data:`~monoavatar.synth.options.CAPTURES`) drew for one
+    scene: ``turns`` of the turn-around, ``progress`` (N,) through it per frame (None:
+    even), the camera's ``roll`` (radians) and the person's ``shift`` (x, y) in the image
+    (fractions of its width and height), and the exposure ``gain`` (N,) per frame."""
+
+    turns: float
+    progress: np.ndarray | None
+    roll: float
+    shift: tuple[float, float]
+    gain: np.ndarray
+
+
+def _phone_take(capture: Capture, frames: int, rng: np.random.Generator) -> PhoneTake:
+    """Draw a :class:`PhoneTake` from the profile ``capture`` with ``rng`` (its own stream,
+    so that a studio take leaves every other draw of the scene as it was)."""
+    turns = float(rng.uniform(capture.turns_min, capture.turns_max))
+    progress = (uneven_progress(frames, capture.speed_wobble, rng)
+                if capture.speed_wobble > 0 else None)  # fmt: skip
+    roll = float(np.deg2rad(rng.uniform(-1.0, 1.0) * capture.roll_deg))
+    off = capture.off_centre
+    shift = ((float(rng.uniform(-off, off)), float(rng.uniform(-off, off) / 3.0))
+             if off > 0 else (0.0, 0.0))  # fmt: skip
+    gain = np.ones(frames, np.float32)
+    if capture.exposure_drift > 0:  # two slow swings, within ± the drift
+        t = np.arange(frames) / max(frames, 1)
+        swing = (0.6 * np.sin(2 * np.pi * rng.uniform(0.3, 1.0) * t + rng.uniform(0, 2 * np.pi))
+                 + 0.4 * np.sin(2 * np.pi * rng.uniform(1.0, 2.5) * t
+                                + rng.uniform(0, 2 * np.pi)))  # fmt: skip
+        gain = (1.0 + capture.exposure_drift * swing).astype(np.float32)
+    return PhoneTake(turns, progress, roll, shift, gain)
+
+
+def _exposed(image: np.ndarray, body: BodyModel, subject: Subject, poses: np.ndarray,
+             translations: np.ndarray, i: int, shutter: float, camera: PinholeCamera,
+             sh: np.ndarray, background: np.ndarray, samples: int = 3) -> np.ndarray:  # fmt: skip
+    """Frame i's image (H, W, 3) as a shutter open for ``shutter`` of the frame interval
+    records it: the mean of ``samples`` renders at times spread evenly over the opening
+    (``image``, the render at the frame's own time, is the middle one; poses and
+    translations interpolated linearly to the neighbouring frames')."""
+    n = len(poses)
+    acc = np.zeros_like(image)
+    for offset in shutter * np.linspace(-0.5, 0.5, samples):
+        if offset == 0.0:
+            acc += image
+            continue
+        j = int(np.clip(i + np.sign(offset), 0, n - 1))
+        w = abs(float(offset))
+        pose = (1 - w) * poses[i] + w * poses[j]
+        trans = (1 - w) * translations[i] + w * translations[j]
+        acc += render_frame(body, subject, pose, trans, camera, sh, background)["image"]
+    return acc / samples
 
 
 def render_frame(
@@ -285,9 +374,11 @@ def _generate_into(
     bg_kind = config.background or str(rng.choice(BACKGROUNDS))
     background = make_background(bg_kind, rng, config.width, config.height)
     n = config.frames
+    capture = CAPTURES[config.capture]
+    take = _phone_take(capture, n, np.random.default_rng([config.seed, 3]))
     translations = np.zeros((n, 3))
     if config.kind == "turnaround":
-        poses = turnaround(body, n, rng)
+        poses = turnaround(body, n, rng, take.turns, take.progress)
     elif config.kind == "motion":
         poses, translations = free_motion(body, n, rng, config.fps)
     elif config.kind in ("walk", "jog"):
@@ -313,7 +404,9 @@ def _generate_into(
                              translations)  # fmt: skip
     else:
         camera = make_camera(camera_rng, config.width, config.height,
-                             reach + translations[:, 1].max())  # fmt: skip
+                             reach + translations[:, 1].max(),
+                             (capture.distance_min, capture.distance_max),
+                             roll=take.roll, shift=take.shift)  # fmt: skip
     for s, subject in enumerate(subjects):
         d = work / "gt" / f"subject_{s:03d}"
         d.mkdir(parents=True)
@@ -330,7 +423,11 @@ def _generate_into(
             background = make_background(bg_kind, rng, config.width, config.height)
         r = render_frame(body, subject, poses[i], translations[i], camera, sh_of_frame[i],
                          background)  # fmt: skip
-        image = degrade(r["image"], noise, frame_rng)
+        image = r["image"]
+        if capture.shutter > 0 and config.kind != "photo":  # motion blur
+            image = _exposed(image, body, subject, poses, translations, i, capture.shutter,
+                             camera, sh_of_frame[i], background)  # fmt: skip
+        image = degrade(image * take.gain[i], noise, frame_rng)
         # lossless; the fastest compression level (docs/decisions.md, "Synthetic data")
         Image.fromarray(image).save(work / "frames" / f"{i:06d}.png", compress_level=1)
         Image.fromarray((r["mask"] * 255).astype(np.uint8)).save(
@@ -349,7 +446,7 @@ def _generate_into(
                      observed=observed)  # fmt: skip
     camera.save_json(work / "camera.json")
     if config.kind != "photo":
-        write_mp4(work / "video.mp4", images, config.fps)
+        write_mp4(work / "video.mp4", images, config.fps, crf=capture.video_crf)
     Image.fromarray(contact_sheet(images)).save(work / "preview" / "contact_sheet.png")
     atomic_write_npz(
         work / "gt" / "params.npz",
@@ -370,6 +467,9 @@ def _generate_into(
         "config": asdict(config),
         "background": bg_kind,
         "noise": noise,
+        "capture": {**asdict(capture), "turns": take.turns, "roll_rad": take.roll,
+                    "shift": list(take.shift),
+                    "gain_range": [float(take.gain.min()), float(take.gain.max())]},
         "units": {"length": "metre", "angle": "radian (axis-angle)", "image": "pixel"},
         "conventions": {
             "camera": "OpenCV: x right, y down, z forward; x_cam = R x_world + t",
