@@ -60,7 +60,14 @@ def _option(p: argparse.ArgumentParser, flag: str, cls: type, name: str, help: s
 
 
 def _add_synth(p: argparse.ArgumentParser) -> None:
-    from monoavatar.synth.options import BACKGROUNDS, CAPTURES, CLOTHING, KINDS, NOISE_LEVELS
+    from monoavatar.synth.options import (
+        BACKGROUNDS,
+        CAPTURES,
+        CLOTHING,
+        KINDS,
+        NOISE_LEVELS,
+        VARIETIES,
+    )
     from monoavatar.synth.scene import SynthConfig
 
     p.description = ("Render a person with known 3D shape, clothing, texture and motion through "
@@ -89,6 +96,10 @@ def _add_synth(p: argparse.ArgumentParser) -> None:
             "aimed at the person, one even turn) or phone (rolled and off-centre, an uneven "
             "turn, exposure drift, motion blur, a coarser H.264 video)",
             choices=list(CAPTURES))  # fmt: skip
+    _option(p, "--variety", SynthConfig, "variety", "subjects drawn from the standard "
+            "distribution or the wide one (heights 1.50-1.95 m, stronger local shape changes, "
+            "garments 6-25 mm thick, hair styles, shoes 6-20 mm)",
+            choices=list(VARIETIES))  # fmt: skip
     p.set_defaults(run=_run_synth)
 
 
@@ -98,7 +109,8 @@ def _run_synth(args: argparse.Namespace) -> int:
     config = SynthConfig(kind=args.kind, frames=args.frames, seed=args.seed, width=args.size[0],
                          height=args.size[1], clothing=args.clothing, noise=args.noise,
                          background=args.background, texture_size=args.texture_size,
-                         posed_every=args.posed_every, capture=args.capture)  # fmt: skip
+                         posed_every=args.posed_every, capture=args.capture,
+                         variety=args.variety)  # fmt: skip
     summary = generate(args.output, config)
     print(
         f"wrote {summary.frames} frames of {summary.subjects} subject(s) to {summary.folder} "

@@ -349,3 +349,46 @@ def test_cli_capture_option(tmp_path, capsys):
         main(["synth", "turnaround", "-o", str(tmp_path / "u"), *args, "--capture", "cinema"])
     with pytest.raises(SynthError, match="unknown capture"):
         SynthConfig(capture="cinema").validate()
+
+
+# -- the wide subject distribution (suite v2) -------------------------------------------------
+
+
+def test_wide_subjects_span_the_heights_and_garments_asked(anny_local):
+    from monoavatar.synth.options import HAIR_STYLES
+    from monoavatar.synth.subjects import WIDE_HEIGHTS, sample_subject
+
+    heights = []
+    for seed in range(6):
+        spec = sample_subject(np.random.default_rng(seed), anny_local, "loose", "wide")
+        with torch.no_grad():
+            rest, _ = anny_local.rest_shape(torch.as_tensor(spec.shape, dtype=torch.float32)[None])
+        heights.append(float(np.ptp(rest[0, :, 1].numpy())))
+        assert 0.006 <= spec.top_thickness <= 0.025 and 0.006 <= spec.bottom_thickness <= 0.025
+        assert 0.006 <= spec.shoe_height <= 0.02 and spec.hair_style in HAIR_STYLES
+        assert np.mean(spec.shape[6:] != 0) > 0.3  # denser local changes than standard's 0.25
+    assert all(WIDE_HEIGHTS[0] <= h <= WIDE_HEIGHTS[1] for h in heights)
+    assert max(heights) - min(heights) > 0.1
+    standard = sample_subject(np.random.default_rng(0), anny_local, "loose")
+    assert (standard.hair_style, standard.shoe_height) == ("cropped", 0.008)
+    with pytest.raises(ValueError, match="variety"):
+        sample_subject(np.random.default_rng(0), anny_local, "loose", "narrow")
+    with pytest.raises(SynthError, match="unknown variety"):
+        SynthConfig(variety="narrow").validate()
+
+
+def test_hair_styles_put_hair_where_they_say(anny_local):
+    from monoavatar.synth.subjects import build_subject, sample_subject
+
+    spec = replace(sample_subject(np.random.default_rng(5), anny_local, "tshirt-shorts", "wide"),
+                   hair_volume=0.02)  # fmt: skip
+    built = {style: build_subject(anny_local, replace(spec, hair_style=style), 64)
+             for style in ("cropped", "full", "bun", "long")}  # fmt: skip
+    hair = {k: b.displacement * (b.garment == 3) for k, b in built.items()}
+    scalp = built["cropped"].garment == 3
+    np.testing.assert_allclose(hair["cropped"][scalp], 0.02)  # even on the scalp
+    assert hair["full"].max() > 1.5 * 0.02 and hair["bun"].max() > 0.02 + 0.035
+    # long hair covers the nape, below the scalp, which the cropped style leaves bare
+    nape = (built["long"].garment == 3) & ~scalp
+    assert nape.sum() > 100 and (built["long"].displacement[nape] > 0.02).mean() > 0.3
+    assert np.array_equal(built["bun"].garment == 3, scalp)  # a bun stays on the scalp

@@ -143,6 +143,7 @@ class BenchSubject:
             "fps": 30.0,
             "posed_every": 10,
             "capture": "studio",
+            "variety": "standard",
         }
 
     def to_dict(self) -> dict[str, object]:
@@ -249,8 +250,10 @@ def scene_is_valid(folder: Path, subject: BenchSubject) -> bool:
         return False
     if info.get("format") != FORMAT:
         return False
-    # scenes made before the capture profiles were studio takes
-    if {"capture": "studio", **info.get("config", {})} != subject.synth_settings():
+    # scenes made before the capture profiles and varieties were studio takes of standard
+    # subjects
+    if {"capture": "studio", "variety": "standard",
+            **info.get("config", {})} != subject.synth_settings():  # fmt: skip
         return False
     for sub in ("frames", "masks"):
         if len(list((folder / sub).glob("*.png"))) != subject.frames:

@@ -12,6 +12,12 @@ CLOTHING: tuple[str, ...] = (
     "minimal", "tight", "tshirt-shorts", "longsleeve-trousers", "loose", "skirt",
 )  # fmt: skip
 BACKGROUNDS: tuple[str, ...] = ("plain", "gradient", "clutter")
+VARIETIES: tuple[str, ...] = ("standard", "wide")
+"""Subject distributions (:func:`monoavatar.synth.subjects.sample_subject`)."""
+HAIR_STYLES: tuple[str, ...] = ("cropped", "full", "bun", "long")
+"""How hair lies on the head: ``cropped`` (the scalp covered evenly), ``full`` (more volume at the
+top and back), ``bun`` (a knot at the back of the head), ``long`` (down the back of the head and
+the nape to the neck)."""
 NOISE_LEVELS: dict[str, dict[str, float]] = {
     "none": {"sigma": 0.0, "jpeg": 0, "blur": 0.0, "keypoint_jitter": 0.0},
     "low": {"sigma": 0.01, "jpeg": 92, "blur": 0.0, "keypoint_jitter": 2.0},

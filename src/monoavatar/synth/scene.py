@@ -53,6 +53,7 @@ from monoavatar.synth.options import (
     FORMAT,
     KINDS,
     NOISE_LEVELS,
+    VARIETIES,
     Capture,
 )
 from monoavatar.synth.subjects import Subject, build_subject, sample_subject
@@ -81,6 +82,7 @@ class SynthConfig:
     fps: float = 30.0
     posed_every: int = 10
     capture: str = "studio"
+    variety: str = "standard"
 
     def validate(self) -> None:
         if self.kind not in KINDS:
@@ -108,6 +110,8 @@ class SynthConfig:
             raise SynthError("posed_every must be at least 1")
         if self.capture not in CAPTURES:
             raise SynthError(f"unknown capture {self.capture!r}; choose from {list(CAPTURES)}")
+        if self.variety not in VARIETIES:
+            raise SynthError(f"unknown variety {self.variety!r}; choose from {VARIETIES}")
 
 
 @dataclass
@@ -387,7 +391,8 @@ def _generate_into(
         poses = np.stack([standing_pose(body, rng) for _ in range(n)])
     subject_of_frame = np.arange(n) if config.kind == "photo" else np.zeros(n, dtype=int)
     num_subjects = int(subject_of_frame.max()) + 1
-    specs = [sample_subject(rng, body, config.clothing) for _ in range(num_subjects)]
+    specs = [sample_subject(rng, body, config.clothing, config.variety)
+             for _ in range(num_subjects)]
     lighting = sample_sh_lighting(rng, num_subjects if config.kind == "photo" else 1).sh
     sh_of_frame = lighting[subject_of_frame if config.kind == "photo" else np.zeros(n, int)]
 
@@ -486,6 +491,7 @@ def _generate_into(
                 "clothing": spec.clothing,
                 "pattern": spec.pattern,
                 "hair_volume_m": spec.hair_volume,
+                "hair_style": spec.hair_style,
                 "height_m": float(np.ptp(subjects[s].rest_vertices[:, 1].numpy())),
             }
             for s, spec in enumerate(specs)

@@ -9,6 +9,7 @@ coarse mesh): 256 local shape changes, and displacements on the 4× finer mesh.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import torch
@@ -18,7 +19,7 @@ from monoavatar.body import REGIONS, BodyModel
 from monoavatar.body.subdivide import Subdivision, subdivide
 from monoavatar.core.camera import PinholeCamera
 from monoavatar.render import rasterize, vertex_normals
-from monoavatar.synth.options import CLOTHING
+from monoavatar.synth.options import CLOTHING, HAIR_STYLES, VARIETIES
 
 GARMENTS = ("skin", "top", "bottom", "hair", "shoes")
 """The garment classes of :attr:`Subject.garment`, by index."""
@@ -52,13 +53,21 @@ class SubjectSpec:
     wrinkle_amplitude: float
     wrinkle_seed: int
     skirt_flare: float = 0.0
+    hair_style: str = "cropped"  # one of HAIR_STYLES
+    shoe_height: float = 0.008  # metres of shoe on the foot
     extras: dict[str, float] = field(default_factory=dict)
 
 
 def sample_subject(
-    rng: np.random.Generator, body: BodyModel, clothing: str | None = None
+    rng: np.random.Generator, body: BodyModel, clothing: str | None = None,
+    variety: str = "standard",
 ) -> SubjectSpec:
-    """Draw a subject: phenotypes across Anny's range, random local changes, a garment set."""
+    """Draw a subject: phenotypes across Anny's range, random local changes, a garment set.
+    ``variety="wide"``: the harder distribution of :func:`sample_wide_subject`."""
+    if variety not in VARIETIES:
+        raise ValueError(f"unknown variety {variety!r}; choose from {VARIETIES}")
+    if variety == "wide":
+        return sample_wide_subject(rng, body, clothing)
     if clothing is None:
         clothing = str(rng.choice(CLOTHING))
     if clothing not in CLOTHING:
@@ -84,24 +93,107 @@ def sample_subject(
         sleeve, leg, top_t, bottom_t, wrinkle = 0.6, 0.95, 0.022, 0.018, 0.005
     elif clothing == "skirt":
         sleeve, leg, top_t, bottom_t, wrinkle, flare = 0.3, 0.35, 0.008, 0.008, 0.002, 0.12
-    hue = rng.uniform(0, 1, 2)
     return SubjectSpec(
         shape=shape,
         clothing=clothing,
-        top_colour=_colour(hue[0], rng),
-        bottom_colour=_colour(hue[1], rng),
-        pattern=str(rng.choice(["solid", "solid", "stripes", "checks"])),
-        skin=SKIN_TONES[rng.integers(len(SKIN_TONES))] * rng.uniform(0.95, 1.05, 3),
-        hair_colour=HAIR_COLOURS[rng.integers(len(HAIR_COLOURS))],
-        hair_volume=float(rng.uniform(0.005, 0.035)),
+        **_appearance(rng, 0.035),
         sleeve=sleeve,
         leg=leg,
         top_thickness=top_t,
         bottom_thickness=bottom_t,
         wrinkle_amplitude=wrinkle,
-        wrinkle_seed=int(rng.integers(2**31)),
         skirt_flare=flare,
     )
+
+
+def _appearance(rng: np.random.Generator, max_hair: float) -> dict[str, Any]:
+    """Colours, pattern, skin, hair colour and volume (0.5 cm to ``max_hair`` metres) and the
+    wrinkles' seed of a :class:`SubjectSpec`, drawn in this order."""
+    hue = rng.uniform(0, 1, 2)
+    return {
+        "top_colour": _colour(hue[0], rng),
+        "bottom_colour": _colour(hue[1], rng),
+        "pattern": str(rng.choice(["solid", "solid", "stripes", "checks"])),
+        "skin": SKIN_TONES[rng.integers(len(SKIN_TONES))] * rng.uniform(0.95, 1.05, 3),
+        "hair_colour": HAIR_COLOURS[rng.integers(len(HAIR_COLOURS))],
+        "hair_volume": float(rng.uniform(0.005, max_hair)),
+        "wrinkle_seed": int(rng.integers(2**31)),
+    }
+
+
+#: sleeve and leg lengths (fractions of shoulder→wrist, hip→ankle) of each garment set
+_LENGTHS = {"minimal": (0.0, 0.12), "tight": (0.25, 0.9), "tshirt-shorts": (0.35, 0.4),
+            "longsleeve-trousers": (0.95, 0.95), "loose": (0.6, 0.95), "skirt": (0.3, 0.35)}
+WIDE_HEIGHTS = (1.50, 1.95)
+"""Body heights (metres, the unclothed canonical mesh) of the wide distribution."""
+
+
+def sample_wide_subject(rng: np.random.Generator, body: BodyModel,
+                        clothing: str | None = None) -> SubjectSpec:  # fmt: skip
+    """A subject of the harder distribution of suite v2: phenotypes across more of Anny's
+    range with the body height in :data:`WIDE_HEIGHTS` (redrawn until it is), stronger and
+    denser local changes, garments 6–25 mm thick (tight ones 4–8 mm) with deeper wrinkles and
+    lengths varied, hair 0.5–3 cm thick in one of :data:`HAIR_STYLES`, shoes 6–20 mm."""
+    if clothing is None:
+        clothing = str(rng.choice(CLOTHING))
+    if clothing not in CLOTHING:
+        raise ValueError(f"unknown clothing {clothing!r}; choose from {CLOTHING}")
+    for _ in range(50):
+        shape = np.zeros(body.shape_dim)
+        shape[:6] = rng.uniform(-0.5, 0.5, 6)  # gender, age, muscle, weight, height, proportions
+        shape[0] = rng.choice([-0.45, 0.45]) + rng.uniform(-0.05, 0.05)
+        shape[1] = rng.uniform(-0.1, 0.35)  # adults
+        if body.shape_dim > 6:  # local changes: denser and stronger than the standard ones
+            active = rng.random(body.shape_dim - 6) < 0.4
+            shape[6:] = active * rng.uniform(-0.9, 0.9, body.shape_dim - 6)
+        with torch.no_grad():
+            rest, _ = body.rest_shape(torch.as_tensor(shape, dtype=body.dtype)[None])
+        if WIDE_HEIGHTS[0] <= float(np.ptp(rest[0, :, 1].numpy())) <= WIDE_HEIGHTS[1]:
+            break
+    sleeve, leg = (float(np.clip(x + rng.uniform(-0.08, 0.08), 0.0, 1.0)) if x > 0.0 else 0.0
+                   for x in _LENGTHS[clothing])  # fmt: skip
+    if clothing == "minimal":
+        top_t, bottom_t, wrinkle = 0.002, 0.002, 0.0005
+    elif clothing == "tight":
+        top_t, bottom_t, wrinkle = rng.uniform(0.004, 0.008, 2).tolist() + [0.0015]
+    else:
+        top_t, bottom_t = rng.uniform(0.006, 0.025, 2).tolist()
+        wrinkle = float(rng.uniform(0.002, 0.008))
+    return SubjectSpec(
+        shape=shape,
+        clothing=clothing,
+        **_appearance(rng, 0.03),
+        sleeve=sleeve,
+        leg=leg,
+        top_thickness=float(top_t),
+        bottom_thickness=float(bottom_t),
+        wrinkle_amplitude=float(wrinkle),
+        skirt_flare=float(rng.uniform(0.08, 0.2)) if clothing == "skirt" else 0.0,
+        hair_style=str(rng.choice(HAIR_STYLES)),
+        shoe_height=float(rng.uniform(0.006, 0.02)),
+    )
+
+
+def _hair(spec: SubjectSpec, p: np.ndarray, scalp: np.ndarray, region: dict[str, np.ndarray],
+          head: np.ndarray, neck_y: float) -> np.ndarray:  # fmt: skip
+    """(V_f,) hair thickness along the normals, metres, of style ``spec.hair_style`` (points
+    ``p`` (V_f, 3) canonical, facing +Z; ``scalp`` the hair region as float; ``head`` the
+    head joint (3,))."""
+    hair = scalp * spec.hair_volume
+    back = np.clip((head[2] - p[:, 2]) / 0.08, 0.0, 1.0)  # 0 in front of the head joint
+    if spec.hair_style == "full":  # fuller at the top and the back
+        top = np.clip((p[:, 1] - head[1]) / 0.1, 0.0, 1.0)
+        hair = scalp * spec.hair_volume * (1.0 + 0.8 * np.maximum(top, back))
+    elif spec.hair_style == "bun":  # a knot at the back of the head, above the head joint
+        centre = head + np.array([0.0, 0.06, -0.09])
+        d2 = ((p - centre) ** 2).sum(1)
+        hair = hair + scalp * 0.045 * np.exp(-d2 / (2 * 0.035**2))
+    elif spec.hair_style == "long":  # down the back of the head and the nape to the neck
+        head_or_neck = region["torso"] | region["hair"] | region["face"]
+        hang = (head_or_neck * back * _smoothstep(neck_y - 0.04, neck_y, p[:, 1])
+                * (1 - _smoothstep(head[1] + 0.02, head[1] + 0.1, p[:, 1])))  # fmt: skip
+        hair = np.maximum(hair, hang * (spec.hair_volume + 0.01))
+    return hair
 
 
 def _colour(hue: float, rng: np.random.Generator) -> np.ndarray:
@@ -202,16 +294,17 @@ def build_subject(body: BodyModel, spec: SubjectSpec, texture_size: int = 1024) 
     if spec.skirt_flare > 0:
         below = np.clip(waist_y - 0.05 - p[:, 1], 0, None)
         disp += bottom * spec.skirt_flare * below / 0.5
-    hair = region["hair"].astype(float)
-    disp += hair * spec.hair_volume
+    scalp = region["hair"].astype(float)
+    hair = _hair(spec, p, scalp, region, J[j("head")], neck_y)
+    disp += hair
     shoes = region["feet"].astype(float)
-    disp += shoes * 0.008
+    disp += shoes * spec.shoe_height
     disp = np.maximum(disp, 0.0)
 
     garment = np.zeros(len(p), dtype=np.int64)
     garment[top > 0.5] = 1
     garment[bottom > 0.5] = 2
-    garment[hair > 0.5] = 3
+    garment[(scalp > 0.5) | (hair > 0.5 * spec.hair_volume)] = 3
     garment[shoes > 0.5] = 4
     rest_vertices = torch.as_tensor(p + disp[:, None] * normals, dtype=body.dtype)
     parts = sub.weights.argmax(dim=1).numpy()
