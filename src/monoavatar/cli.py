@@ -94,7 +94,8 @@ def _add_synth(p: argparse.ArgumentParser) -> None:
             "write the posed ground-truth mesh every N frames", type=int)  # fmt: skip
     _option(p, "--capture", SynthConfig, "capture", "how it is filmed: studio (a level camera "
             "aimed at the person, one even turn) or phone (rolled and off-centre, an uneven "
-            "turn, exposure drift, motion blur, a coarser H.264 video)",
+            "turn, exposure drift, motion blur, a sun that casts shadows, a coarser H.264 "
+            "video)",
             choices=list(CAPTURES))  # fmt: skip
     _option(p, "--variety", SynthConfig, "variety", "subjects drawn from the standard "
             "distribution or the wide one (heights 1.50-1.95 m, stronger local shape changes, "

@@ -298,6 +298,9 @@ def test_phone_take_blurs_drifts_and_encodes_coarser(anny_local, tmp_path):
     phone = scene_mod._phone_take(CAPTURES["phone"], 50, np.random.default_rng(0))
     assert 0.85 <= phone.turns <= 1.15 and abs(phone.roll) <= np.deg2rad(4.0)
     assert np.all(np.abs(phone.gain - 1.0) <= 0.12 + 1e-6) and np.ptp(phone.gain) > 0.01
+    assert studio.sun is None and phone.sun is not None and phone.sun.share == 0.5
+    assert np.linalg.norm(phone.sun.direction) == pytest.approx(1.0)
+    assert np.sin(np.deg2rad(20)) - 1e-9 <= phone.sun.direction[1] <= np.sin(np.deg2rad(60))
 
     out = tmp_path / "phone"
     generate(out, SynthConfig(kind="turnaround", frames=6, seed=3, noise="none",
@@ -392,3 +395,35 @@ def test_hair_styles_put_hair_where_they_say(anny_local):
     nape = (built["long"].garment == 3) & ~scalp
     assert nape.sum() > 100 and (built["long"].displacement[nape] > 0.02).mean() > 0.3
     assert np.array_equal(built["bun"].garment == 3, scalp)  # a bun stays on the scalp
+
+
+def test_the_sun_lights_what_faces_it_and_casts_shadows():
+    # a 2 m floor (y = 0, normal +y) and a 0.4 m square 0.5 m above it, the sun straight up
+    def quad(half: float, y: float) -> np.ndarray:
+        return np.array([[-half, y, -half], [half, y, -half], [half, y, half], [-half, y, half]])
+
+    vertices = torch.as_tensor(np.concatenate([quad(1.0, 0.0), quad(0.2, 0.5)]))
+    faces = torch.tensor([[0, 2, 1], [0, 3, 2], [4, 6, 5], [4, 7, 6]])  # both facing +y
+    camera = PinholeCamera.look_at(np.array([0.0, 3.0, 1.5]), np.zeros(3),
+                                   np.array([0, 0, -1.0]), 150.0, 160, 120)  # fmt: skip
+    frags = rasterize(vertices, faces, camera)
+    tilt = np.deg2rad(10.0)
+    sun = scene_mod.Sun(np.array([0.0, np.cos(tilt), np.sin(tilt)]), np.array([1.0, 0.9, 0.8]),
+                        0.5)  # fmt: skip
+    light = scene_mod.sun_shading(vertices.float(), faces, frags, sun)
+    face = frags.face_id.numpy()[frags.face_id.numpy() >= 0]
+    rows, cols = np.nonzero(frags.face_id.numpy() >= 0)
+    rays = camera.pixel_rays(torch.as_tensor(np.stack([cols + 0.5, rows + 0.5], 1)))
+    origin, direction = (r.numpy() for r in rays)
+    floor = face < 2
+    hit = origin + direction * (-origin[:, 1:2] / direction[:, 1:2])  # the floor point seen
+    # where the square's shadow falls: the floor point moved towards the sun to y = 0.5
+    up = hit + sun.direction[None] * (0.5 / sun.direction[1])
+    shadow = floor & (np.abs(up[:, 0]) < 0.18) & (np.abs(up[:, 2]) < 0.18)
+    sunny = floor & ((np.abs(up[:, 0]) > 0.25) | (np.abs(up[:, 2]) > 0.25))
+    assert shadow.sum() > 30 and sunny.sum() > 300
+    np.testing.assert_allclose(light[shadow], 0.0)
+    np.testing.assert_allclose(light[sunny], np.cos(tilt) * sun.colour[None].repeat(sunny.sum(), 0),
+                               rtol=1e-5)  # fmt: skip
+    np.testing.assert_allclose(light[face >= 2], np.cos(tilt) * sun.colour[None].repeat(
+        (face >= 2).sum(), 0), rtol=1e-5)  # the square's top is lit

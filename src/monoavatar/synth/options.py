@@ -41,6 +41,8 @@ class Capture:
         shutter: motion blur over this fraction of the frame interval (0: none).
         video_crf: ``video.mp4``'s H.264 constant rate factor (higher: coarser; None: the
             encoder's default rate control).
+        sun: share of the light that comes from one directional light with cast shadows,
+            the rest from the scene's low-order (SH) ambient light (0: ambient alone).
     """
 
     roll_deg: float = 0.0
@@ -53,15 +55,17 @@ class Capture:
     exposure_drift: float = 0.0
     shutter: float = 0.0
     video_crf: float | None = None
+    sun: float = 0.0
 
 
 CAPTURES: dict[str, Capture] = {
     "studio": Capture(),
     "phone": Capture(roll_deg=4.0, off_centre=0.12, distance_min=1.9, distance_max=3.6,
                      turns_min=0.85, turns_max=1.15, speed_wobble=0.35, exposure_drift=0.12,
-                     shutter=0.5, video_crf=30.0),
+                     shutter=0.5, video_crf=30.0, sun=0.5),
 }  # fmt: skip
 """The capture profiles. ``studio``: a level camera 2.2–3.0 m away aimed at the person, one
 even turn, a fixed exposure, no motion blur. ``phone``: a hand-held phone's take, rolled and
-off-centre, an uneven turn of 0.85–1.15 turns, the exposure drifting, motion blur, and a
-coarser video (CRF 30: 36 dB against the frames on a turn-around, 39 dB by default)."""
+off-centre, an uneven turn of 0.85–1.15 turns, the exposure drifting, motion blur, half the
+light from a sun that casts shadows, and a coarser video (CRF 30: 36 dB against the frames on
+a turn-around, 39 dB by default)."""

@@ -22,9 +22,9 @@ Pixel origin: the top-left corner of the top-left pixel.
 How it is filmed follows a capture profile (:data:`~monoavatar.synth.options.CAPTURES`,
 ``SynthConfig.capture``): ``studio`` (a level camera aimed at the person, one even turn) or
 ``phone`` (:class:`PhoneTake`: rolled and off-centre, an uneven turn, exposure drift, motion
-blur, a coarser video). The profile draws from a random stream of its own, so a studio scene is
-the same as before the profiles existed. The masks, keypoints and meshes are those of the
-frame's own instant (the middle of the shutter).
+blur, a :class:`Sun` that casts shadows, a coarser video). The profile draws from a random
+stream of its own, so a studio scene is the same as before the profiles existed. The masks,
+keypoints and meshes are those of the frame's own instant (the middle of the shutter).
 """
 
 from __future__ import annotations
@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 import torch
 from PIL import Image
+from torch import Tensor
 from tqdm import tqdm
 
 from monoavatar.body import MEDIAPIPE_LANDMARKS, BodyModel, lbs, load_body_model
@@ -45,7 +46,13 @@ from monoavatar.core.camera import PinholeCamera
 from monoavatar.core.errors import MonoavatarError
 from monoavatar.core.files import atomic_write_npz, staged_folder
 from monoavatar.io.export_mesh import write_mp4, write_obj, write_ply
-from monoavatar.render import rasterize, render_textured, sample_sh_lighting
+from monoavatar.render import (
+    Fragments,
+    rasterize,
+    render_textured,
+    sample_sh_lighting,
+    vertex_normals,
+)
 from monoavatar.synth.options import (
     BACKGROUNDS,
     CAPTURES,
@@ -224,17 +231,62 @@ def detector_keypoints(exact: np.ndarray, jitter_px: float, rng: np.random.Gener
 
 
 @dataclass(frozen=True)
+class Sun:
+    """A directional light: unit ``direction`` (3,) towards the light, world frame; RGB
+    ``colour`` (3,); ``share`` of the shading it gives (the SH ambient light the rest)."""
+
+    direction: np.ndarray
+    colour: np.ndarray
+    share: float
+
+
+def sun_shading(posed: Tensor, faces: Tensor, frags: Fragments, sun: Sun,
+                shadow_size: int = 512, bias: float = 0.015) -> np.ndarray:  # fmt: skip
+    """(N, 3) the sun's shading ``colour · max(0, n · l) · lit`` at the N covered pixels of
+    ``frags`` (a rasterisation of the mesh ``posed`` (V, 3) world metres, ``faces`` (F, 3)):
+    ``lit`` is 0 where the mesh itself stands between the pixel's surface point and the sun,
+    from a shadow map (a near-orthographic depth render ``shadow_size`` pixels wide along the
+    light, depths compared with ``bias`` metres)."""
+    v = posed.double().numpy()
+    f = faces.numpy()
+    covered = frags.face_id.numpy() >= 0
+    corner = f[frags.face_id.numpy()[covered]]  # (N, 3)
+    bary = frags.bary.numpy()[covered].astype(np.float64)  # (N, 3)
+    point = np.einsum("nk,nkc->nc", bary, v[corner])
+    normal = vertex_normals(torch.as_tensor(v), faces).numpy()
+    n = np.einsum("nk,nkc->nc", bary, normal[corner])
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    facing = np.clip(n @ sun.direction, 0.0, None)
+    centre = 0.5 * (v.min(0) + v.max(0))
+    extent = float(np.linalg.norm(v.max(0) - v.min(0)))
+    distance = 50.0 * extent  # far away: close to an orthographic view along the light
+    up = np.array([0.0, 1.0, 0.0]) if abs(sun.direction[1]) < 0.95 else np.array([0, 0, 1.0])
+    light = PinholeCamera.look_at(centre + distance * sun.direction, centre, up,
+                                  0.9 * shadow_size * distance / extent, shadow_size,
+                                  shadow_size)  # fmt: skip
+    depth = rasterize(v, f, light).depth.numpy()
+    cam = point @ light.R.T + light.t
+    px = cam @ light.K.T
+    col = np.clip((px[:, 0] / cam[:, 2]).astype(int), 0, shadow_size - 1)
+    row = np.clip((px[:, 1] / cam[:, 2]).astype(int), 0, shadow_size - 1)
+    lit = cam[:, 2] <= depth[row, col] + bias
+    return (facing * lit)[:, None] * sun.colour[None]
+
+
+@dataclass(frozen=True)
 class PhoneTake:
     """What a capture profile (:data:`~monoavatar.synth.options.CAPTURES`) drew for one
     scene: ``turns`` of the turn-around, ``progress`` (N,) through it per frame (None:
     even), the camera's ``roll`` (radians) and the person's ``shift`` (x, y) in the image
-    (fractions of its width and height), and the exposure ``gain`` (N,) per frame."""
+    (fractions of its width and height), the exposure ``gain`` (N,) per frame, and the
+    ``sun`` (None: ambient light alone)."""
 
     turns: float
     progress: np.ndarray | None
     roll: float
     shift: tuple[float, float]
     gain: np.ndarray
+    sun: Sun | None
 
 
 def _phone_take(capture: Capture, frames: int, rng: np.random.Generator) -> PhoneTake:
@@ -254,12 +306,20 @@ def _phone_take(capture: Capture, frames: int, rng: np.random.Generator) -> Phon
                  + 0.4 * np.sin(2 * np.pi * rng.uniform(1.0, 2.5) * t
                                 + rng.uniform(0, 2 * np.pi)))  # fmt: skip
         gain = (1.0 + capture.exposure_drift * swing).astype(np.float32)
-    return PhoneTake(turns, progress, roll, shift, gain)
+    sun = None
+    if capture.sun > 0:  # from above (20-60 degrees up), any side, a little warm or cool
+        elevation, azimuth = np.deg2rad(rng.uniform(20, 60)), rng.uniform(0, 2 * np.pi)
+        direction = np.array([np.cos(elevation) * np.sin(azimuth), np.sin(elevation),
+                              np.cos(elevation) * np.cos(azimuth)])  # fmt: skip
+        warmth = rng.uniform(-0.08, 0.08)
+        sun = Sun(direction, np.array([1.0 + warmth, 1.0, 1.0 - warmth]), capture.sun)
+    return PhoneTake(turns, progress, roll, shift, gain, sun)
 
 
 def _exposed(image: np.ndarray, body: BodyModel, subject: Subject, poses: np.ndarray,
              translations: np.ndarray, i: int, shutter: float, camera: PinholeCamera,
-             sh: np.ndarray, background: np.ndarray, samples: int = 3) -> np.ndarray:  # fmt: skip
+             sh: np.ndarray, background: np.ndarray, sun: Sun | None = None,
+             samples: int = 3) -> np.ndarray:  # fmt: skip
     """Frame i's image (H, W, 3) as a shutter open for ``shutter`` of the frame interval
     records it: the mean of ``samples`` renders at times spread evenly over the opening
     (``image``, the render at the frame's own time, is the middle one; poses and
@@ -274,7 +334,7 @@ def _exposed(image: np.ndarray, body: BodyModel, subject: Subject, poses: np.nda
         w = abs(float(offset))
         pose = (1 - w) * poses[i] + w * poses[j]
         trans = (1 - w) * translations[i] + w * translations[j]
-        acc += render_frame(body, subject, pose, trans, camera, sh, background)["image"]
+        acc += render_frame(body, subject, pose, trans, camera, sh, background, sun)["image"]
     return acc / samples
 
 
@@ -286,10 +346,13 @@ def render_frame(
     camera: PinholeCamera,
     sh: np.ndarray,
     background: np.ndarray,
+    sun: Sun | None = None,
 ) -> dict[str, np.ndarray]:
     """Render one ground-truth frame. Returns float image (H, W, 3), mask (H, W) bool, posed fine
     vertices (V_f, 3), keypoints_3d (33, 3), keypoints (33, 3) = x, y, visibility, and the
-    skeleton's posed joints (J, 3), world metres."""
+    skeleton's posed joints (J, 3), world metres. With a ``sun``, the albedo is shaded by
+    ``(1 − share) · SH + share · 2 · sun_shading`` (the factor keeps a lit side about as bright
+    as under the SH light alone)."""
     with torch.no_grad():
         out = body(
             shape=subject.shape,
@@ -304,6 +367,13 @@ def render_frame(
                             torch.as_tensor(subject.texture), sh=sh,
                             background=torch.as_tensor(background))  # fmt: skip
     mask = (frags.face_id >= 0).numpy()
+    if sun is not None:
+        covered = frags.face_id >= 0
+        albedo = render_textured(posed, sub.faces, frags, sub.uv, sub.face_uv,
+                                 torch.as_tensor(subject.texture))[covered]  # fmt: skip
+        light = torch.as_tensor(sun_shading(posed, sub.faces, frags, sun), dtype=albedo.dtype)
+        image = image.clone()
+        image[covered] = (1.0 - sun.share) * image[covered] + sun.share * 2.0 * albedo * light
     px, depth = camera.project(kp3d.double())
     px_np, depth_np = px.numpy(), depth.numpy()
     zbuf = frags.depth.numpy()
@@ -427,11 +497,11 @@ def _generate_into(
         if config.kind == "photo" and i > 0:
             background = make_background(bg_kind, rng, config.width, config.height)
         r = render_frame(body, subject, poses[i], translations[i], camera, sh_of_frame[i],
-                         background)  # fmt: skip
+                         background, take.sun)  # fmt: skip
         image = r["image"]
         if capture.shutter > 0 and config.kind != "photo":  # motion blur
             image = _exposed(image, body, subject, poses, translations, i, capture.shutter,
-                             camera, sh_of_frame[i], background)  # fmt: skip
+                             camera, sh_of_frame[i], background, take.sun)  # fmt: skip
         image = degrade(image * take.gain[i], noise, frame_rng)
         # lossless; the fastest compression level (docs/decisions.md, "Synthetic data")
         Image.fromarray(image).save(work / "frames" / f"{i:06d}.png", compress_level=1)
@@ -474,7 +544,10 @@ def _generate_into(
         "noise": noise,
         "capture": {**asdict(capture), "turns": take.turns, "roll_rad": take.roll,
                     "shift": list(take.shift),
-                    "gain_range": [float(take.gain.min()), float(take.gain.max())]},
+                    "gain_range": [float(take.gain.min()), float(take.gain.max())],
+                    "sun": None if take.sun is None else {
+                        "direction": take.sun.direction.tolist(),
+                        "colour": take.sun.colour.tolist(), "share": take.sun.share}},
         "units": {"length": "metre", "angle": "radian (axis-angle)", "image": "pixel"},
         "conventions": {
             "camera": "OpenCV: x right, y down, z forward; x_cam = R x_world + t",
