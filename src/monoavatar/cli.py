@@ -1040,6 +1040,11 @@ def _add_bench(p: argparse.ArgumentParser) -> None:
                    help="one small subject with few frames: a smoke test of a few minutes")
     p.add_argument("--subjects", nargs="+", default=None, metavar="NAME",
                    help="run only these suite subjects")  # fmt: skip
+    p.add_argument("--suite", choices=("v1", "v2"), default="v1",
+                   help="v1: the suite of studio takes (Table B.1's setting); v2: the harder "
+                   "suite, phone takes of wide subjects reconstructed from their video with "
+                   "the focal length and height given, in a dev and a sealed test split "
+                   "(--split) (default: %(default)s)")  # fmt: skip
     p.add_argument("--no-gt-poses", action="store_true",
                    help="skip the runs with ground-truth poses")  # fmt: skip
     p.add_argument("--measure-only", action="store_true",
@@ -1079,9 +1084,9 @@ def _add_bench(p: argparse.ArgumentParser) -> None:
                    help="with --photo or --fast: the network's weights (default: the shipped "
                    "ones)")  # fmt: skip
     p.add_argument("--split", choices=("dev", "test"), default="test",
-                   help="with --photo: 'dev' runs photos of the validation subjects (choose "
-                   "settings there), 'test' the sealed test photos, only to report a finished "
-                   "change (default: %(default)s)")  # fmt: skip
+                   help="with --photo or --suite v2: 'dev' runs the validation photos or "
+                   "subjects (choose settings there), 'test' the sealed test ones, only to "
+                   "report a finished change (default: %(default)s)")  # fmt: skip
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(run=_run_bench)
 
@@ -1093,9 +1098,12 @@ def _run_bench(args: argparse.Namespace) -> int:
         raise CliError(f"--track-rounds must be >= 0, got {args.track_rounds}")
     if args.workers < 1:
         raise CliError(f"--workers must be at least 1, got {args.workers}")
-    if args.split != "test" and not args.photo:
-        raise CliError("--split dev goes with --photo (the other tables have their own fixed "
-                       "scenes)")  # fmt: skip
+    if args.split != "test" and not (args.photo or args.suite == "v2"):
+        raise CliError("--split dev goes with --photo or --suite v2 (the other tables have "
+                       "their own fixed scenes)")  # fmt: skip
+    if args.suite == "v2" and (args.quick or args.tracking or args.fast or args.photo):
+        raise CliError("--suite v2 is the reconstruction suite; it does not go with --quick, "
+                       "--tracking, --fast or --photo")  # fmt: skip
     if args.address is not None and (args.tracking or args.fast or args.photo):
         raise CliError("--address runs the reconstruction suite; it does not go with "
                        "--tracking, --fast or --photo")  # fmt: skip
@@ -1125,7 +1133,8 @@ def _run_bench(args: argparse.Namespace) -> int:
         print(f"results: {args.output / 'photo.md'} and {args.output / 'photo.json'}")
         return 0
     run_bench(args.output, quick=args.quick, subjects=args.subjects,
-              gt_poses=not args.no_gt_poses, progress=not args.quiet,
+              gt_poses=not args.no_gt_poses, suite_name=args.suite, split=args.split,
+              progress=not args.quiet,
               measure_only=args.measure_only, track_rounds=args.track_rounds,
               workers=args.workers, address=args.address)  # fmt: skip
     print(f"results: {args.output / 'results.md'} and {args.output / 'results.json'}")

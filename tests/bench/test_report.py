@@ -102,6 +102,9 @@ def test_table_has_published_columns(tmp_path):
     assert "failed: RuntimeError: boom" in table
     rows = [line for line in table.splitlines() if line.startswith("| clothed (like BUFF)")]
     assert rows and "5.37" in rows[0] and "3.40" in rows[0]
+    assert table.startswith(f"# monoavatar bench: suite v1 (full), version {SUITE_VERSION},")
+    res.suite = BenchSuite(1, "v2-test", res.suite.subjects)
+    assert render_markdown(res).startswith("# monoavatar bench: suite v2, test split, version 1,")
 
 
 def test_table_shows_the_root_orientation_error(tmp_path):

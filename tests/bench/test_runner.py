@@ -4,6 +4,7 @@ import contextlib
 import io
 import json
 import shutil
+from dataclasses import replace
 
 import pytest
 
@@ -18,7 +19,7 @@ def tiny_suite(tiny_scene, monkeypatch):
     """The tiny scene's subject as the whole suite: (subject, scenes folder, scene folder)."""
     subject = tiny_scene[0]
     tiny = BenchSuite(SUITE_VERSION, "tiny", (subject,))
-    monkeypatch.setattr(runner, "get_suite", lambda quick=False: tiny)
+    monkeypatch.setattr(runner, "get_suite", lambda *args, **kw: tiny)
     return tiny_scene
 
 
@@ -32,7 +33,7 @@ def fake_bench(tiny_scene, anny32, anny_local, tmp_path_factory):
     out = tmp_path_factory.mktemp("fake-bench") / "bench"
     printed = io.StringIO()
     with pytest.MonkeyPatch.context() as mp, contextlib.redirect_stdout(printed):
-        mp.setattr(runner, "get_suite", lambda quick=False: tiny)
+        mp.setattr(runner, "get_suite", lambda *args, **kw: tiny)
         results = runner.run_bench(out, reconstruct=fake, scenes_dir=tiny_scene[1],
                                    progress=True, track_rounds=0)  # fmt: skip
     return fake, out, results, printed.getvalue()
@@ -201,7 +202,44 @@ def test_photo_split_reaches_the_photo_bench(tmp_path, monkeypatch, capsys):
     assert main(["bench", "-o", str(tmp_path), "--photo", "--quiet", "--split", "dev"]) == 0
     assert [c["split"] for c in calls] == ["test", "dev"]
     assert main(["bench", "-o", str(tmp_path), "--split", "dev"]) == 2
-    assert "--split dev goes with --photo" in capsys.readouterr().err
+    assert "--split dev goes with --photo or --suite v2" in capsys.readouterr().err
     assert len(calls) == 2
     with pytest.raises(ValueError, match="unknown split"):
         real(tmp_path, split="train", photos=1, progress=False)
+
+
+def test_suite_v2_and_its_split_reach_the_bench_from_the_cli(tmp_path, monkeypatch, capsys):
+    from monoavatar.cli import main
+
+    calls = []
+    monkeypatch.setattr(runner, "run_bench", lambda out, **kw: calls.append(kw))
+    assert main(["bench", "-o", str(tmp_path), "--quiet"]) == 0
+    assert main(["bench", "-o", str(tmp_path), "--quiet", "--suite", "v2", "--split", "dev"]) == 0
+    assert main(["bench", "-o", str(tmp_path), "--quiet", "--suite", "v2"]) == 0
+    assert [(c["suite_name"], c["split"]) for c in calls] == [("v1", "test"), ("v2", "dev"),
+                                                              ("v2", "test")]  # fmt: skip
+    assert main(["bench", "-o", str(tmp_path), "--suite", "v2", "--quick"]) == 2
+    assert "does not go with --quick" in capsys.readouterr().err
+    assert len(calls) == 3
+
+
+def test_a_video_subject_is_reconstructed_from_its_video_with_focal_and_height(tmp_path):
+    from monoavatar.bench.suite import MODES, V2_SUBJECTS
+
+    subject = V2_SUBJECTS["dev"][0]
+    scene = tmp_path / subject.name
+    scene.mkdir()
+    (scene / "scene.json").write_text(json.dumps({
+        "camera": {"K": [[512.5, 0, 270], [0, 512.5, 270], [0, 0, 1]]},
+        "subjects": [{"height_m": 1.83}]}))  # fmt: skip
+    estimated, shape_only, gt = MODES
+    for mode in (estimated, shape_only):
+        source, video = runner._run_input(subject, mode, scene)
+        assert source == scene / "video.mp4" and video == (512.5, 1.83)
+        config = runner._make_config(subject, mode, False, 3, video)
+        assert (config.input.focal, config.pose.height) == (512.5, 1.83)
+        assert (config.input.workers, config.shape.workers, config.texture.workers,
+                config.flow.workers) == (3, 3, 3, 3)  # fmt: skip
+    assert runner._run_input(subject, gt, scene) == (scene, None)  # true poses: the folder
+    v1 = runner._make_config(replace(subject, from_video=False), estimated, False, 2, None)
+    assert (v1.input.focal, v1.pose.height) == (None, runner.HEIGHT)

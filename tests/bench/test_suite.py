@@ -153,3 +153,25 @@ def test_a_foreign_folder_is_not_deleted(tmp_path):
     with pytest.raises(SuiteError, match="not a scene folder"):
         ensure_scene(subject, tmp_path)
     assert (foreign / "notes.txt").read_text() == "mine"
+
+
+def test_suite_v2_has_a_dev_and_a_sealed_test_split_of_phone_takes():
+    from monoavatar.bench.suite import SPLITS, SUITE_V2_VERSION, V2_SUBJECTS
+
+    dev, test = (get_suite(suite="v2", split=s) for s in SPLITS)
+    assert (dev.name, test.name) == ("v2-dev", "v2-test")
+    assert dev.version == test.version == SUITE_V2_VERSION
+    assert [s.seed for s in dev.subjects] == [5001, 5002, 5003, 5004]
+    assert [s.seed for s in test.subjects] == list(range(6001, 6009))
+    v1_seeds = {s.seed for s in get_suite().subjects}
+    seeds = [s.seed for s in dev.subjects + test.subjects]
+    assert len(set(seeds)) == len(seeds) and not v1_seeds & set(seeds)
+    for s in dev.subjects + test.subjects:
+        assert (s.capture, s.variety, s.from_video) == ("phone", "wide", True)
+        assert s.synth_settings()["capture"] == "phone"
+        assert s.name.startswith(f"v2{'dev' if s in V2_SUBJECTS['dev'] else 'test'}-")
+    assert {s.category for s in test.subjects} == {"minimal", "clothed"}
+    with pytest.raises(SuiteError, match="unknown split"):
+        get_suite(suite="v2", split="train")
+    with pytest.raises(SuiteError, match="unknown suite"):
+        get_suite(suite="v3")

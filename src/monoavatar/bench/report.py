@@ -310,6 +310,14 @@ def _group_label(name: str) -> str:
     return CATEGORIES[name]
 
 
+def _suite_label(name: str) -> str:
+    """How the report names a suite: ``full`` and ``quick`` are suite v1's, ``v2-dev`` and
+    ``v2-test`` suite v2's splits."""
+    if name.startswith("v2-"):
+        return f"v2, {name[3:]} split"
+    return f"v1 ({name})"
+
+
 def render_markdown(results: BenchResults) -> str:
     """The ``results.md`` table (also printed by ``monoavatar bench``)."""
     agg = results.aggregate
@@ -317,8 +325,8 @@ def render_markdown(results: BenchResults) -> str:
     names = [mode.name for mode in results.modes]
     pub = PUBLISHED["surface_error_mm"]
     lines = [
-        f"# monoavatar bench: suite v{results.suite.version} ({results.suite.name}), "
-        f"{results.date[:10]}",
+        f"# monoavatar bench: suite {_suite_label(results.suite.name)}, version "
+        f"{results.suite.version}, {results.date[:10]}",
         "",
         f"Measured on {m.get('cpu', '?')}, {m.get('usable_cores', '?')} usable cores, "
         f"{m.get('torch_threads', '?')} torch threads; Python {m.get('python', '?')}, "

@@ -24,6 +24,7 @@ is the same as one process would write, in the suite's order.
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import sys
@@ -77,20 +78,35 @@ def _default_reconstruct() -> ReconstructFn:
 
 
 def _make_config(subject: BenchSubject, mode: BenchMode, progress: bool,
-                 workers: int = 2) -> Any:  # fmt: skip
+                 workers: int = 2, video: tuple[float, float] | None = None) -> Any:  # fmt: skip
+    """The reconstruction's settings for one run; ``video`` (focal length px, height m):
+    the run reads the scene's video with these, as a user would."""
     from monoavatar.pipelines.reconstruct import ReconstructConfig
     from monoavatar.pipelines.stages import InputSettings
 
     base = ReconstructConfig()
+    focal, height = video if video is not None else (None, HEIGHT)
     return ReconstructConfig(
         input=InputSettings(frames=subject.keyframes, perception=mode.perception,
-                            poses=mode.poses),  # fmt: skip
+                            poses=mode.poses, focal=focal, workers=workers),  # fmt: skip
         progress=progress,
-        pose=replace(base.pose, height=HEIGHT),
-        shape=replace(base.shape, fit_offsets=mode.offsets),
+        pose=replace(base.pose, height=height),
+        shape=replace(base.shape, fit_offsets=mode.offsets, workers=workers),
         texture=replace(base.texture, size=subject.texture_size, workers=workers),
         flow=replace(base.flow, workers=workers),
     )
+
+
+def _run_input(subject: BenchSubject, mode: BenchMode, scene: Path
+               ) -> tuple[Path, tuple[float, float] | None]:  # fmt: skip
+    """What a run reads: the scene folder, or, for a ``from_video`` subject's run on
+    estimated poses, its ``video.mp4`` with the focal length (pixels) and the subject's
+    height (metres, the clothed canonical mesh's) from ``scene.json``."""
+    if not subject.from_video or mode.poses != "fit":
+        return scene, None
+    info = json.loads((scene / "scene.json").read_text())
+    return scene / "video.mp4", (float(info["camera"]["K"][0][0]),
+                                 float(info["subjects"][0]["height_m"]))  # fmt: skip
 
 
 @contextmanager
@@ -154,6 +170,8 @@ def run_bench(
     quick: bool = False,
     subjects: Sequence[str] | None = None,
     gt_poses: bool = True,
+    suite_name: str = "v1",
+    split: str = "test",
     reconstruct: ReconstructFn | None = None,
     progress: bool = True,
     scenes_dir: str | Path | None = None,
@@ -170,6 +188,8 @@ def run_bench(
         subjects: names of suite subjects to run (default all; unknown names raise
             :class:`~monoavatar.bench.suite.SuiteError` listing the valid ones).
         gt_poses: also reconstruct with ground-truth poses (the second column of Table B.1).
+        suite_name: ``"v1"`` (the full suite, or the quick one) or ``"v2"``, the harder suite
+            of phone takes of wide subjects, whose ``split`` (``"dev"`` or ``"test"``) is run.
         reconstruct: the reconstruction function (default
             :func:`monoavatar.pipelines.reconstruct.reconstruct`); called as
             ``reconstruct(scene_folder, run_folder, ReconstructConfig(...))``.
@@ -196,7 +216,8 @@ def run_bench(
     """
     start = time.perf_counter()
     out = Path(out_dir)
-    suite = get_suite(quick).select(list(subjects) if subjects is not None else None)
+    suite = get_suite(quick, suite_name, split).select(
+        list(subjects) if subjects is not None else None)
     modes = tuple(m for m in MODES if gt_poses or m.poses != "ground-truth")
     scenes = Path(scenes_dir) if scenes_dir is not None else out / "scenes"
     fn = reconstruct if reconstruct is not None else _default_reconstruct()
@@ -271,12 +292,13 @@ def _one_run(subject: BenchSubject, mode: BenchMode, scene: Path, truth: Any,
         if folder.exists():
             shutil.rmtree(folder)
         folder.mkdir(parents=True)
-        config = _make_config(subject, mode, progress, workers)
+        source, video = _run_input(subject, mode, scene)
+        config = _make_config(subject, mode, progress, workers, video)
         measured_peak = _reset_peak_rss()
         t0 = time.perf_counter()
         try:
             with _private_cache(options.out / ".cache"):
-                fn(scene, folder, config)
+                fn(source, folder, config)
         except Exception as exc:  # noqa: BLE001 - recorded, the benchmark goes on
             run.error = _short_error(exc)
             run.wall_seconds = time.perf_counter() - t0

@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from monoavatar.core.errors import MonoavatarError
-from monoavatar.synth.options import CLOTHING, FORMAT
+from monoavatar.synth.options import CAPTURES, CLOTHING, FORMAT, VARIETIES
 
 if TYPE_CHECKING:
     from monoavatar.body import BodyModel
@@ -32,7 +32,10 @@ __all__ = [
     "MODES",
     "FULL_SUBJECTS",
     "QUICK_SUBJECTS",
+    "SPLITS",
+    "SUITE_V2_VERSION",
     "SUITE_VERSION",
+    "V2_SUBJECTS",
     "BenchMode",
     "BenchSubject",
     "BenchSuite",
@@ -104,6 +107,11 @@ class BenchSubject:
             scene; the other frames are held out for the texture metric.
         texture_size: texture side in texels, for the scene's ground truth and the
             reconstruction alike.
+        capture: how the scene is filmed (:data:`monoavatar.synth.options.CAPTURES`).
+        variety: the subject distribution (:data:`monoavatar.synth.options.VARIETIES`).
+        from_video: the estimated-pose runs read the scene's ``video.mp4`` with its focal
+            length and the subject's height, as a user runs ``reconstruct VIDEO --focal F
+            --height H``; otherwise the synth folder's frames (no height given).
     """
 
     name: str
@@ -115,12 +123,18 @@ class BenchSubject:
     height: int = 540
     keyframes: int = 30
     texture_size: int = 1024
+    capture: str = "studio"
+    variety: str = "standard"
+    from_video: bool = False
 
     def __post_init__(self) -> None:
         if self.category not in CATEGORIES:
             raise SuiteError(f"{self.name}: category must be one of {list(CATEGORIES)}")
         if self.clothing not in CLOTHING:
             raise SuiteError(f"{self.name}: clothing must be one of {CLOTHING}")
+        if self.capture not in CAPTURES or self.variety not in VARIETIES:
+            raise SuiteError(f"{self.name}: capture must be one of {list(CAPTURES)} and variety "
+                             f"one of {VARIETIES}")  # fmt: skip
         if not 2 <= self.keyframes < self.frames:
             raise SuiteError(
                 f"{self.name}: keyframes must lie in [2, frames) so frames are held out, "
@@ -142,8 +156,8 @@ class BenchSubject:
             "texture_size": self.texture_size,
             "fps": 30.0,
             "posed_every": 10,
-            "capture": "studio",
-            "variety": "standard",
+            "capture": self.capture,
+            "variety": self.variety,
         }
 
     def to_dict(self) -> dict[str, object]:
@@ -157,6 +171,9 @@ class BenchSubject:
             "size": [self.width, self.height],
             "keyframes": self.keyframes,
             "texture_size": self.texture_size,
+            "capture": self.capture,
+            "variety": self.variety,
+            "from_video": self.from_video,
         }
 
 
@@ -235,8 +252,54 @@ QUICK_SUBJECTS: tuple[BenchSubject, ...] = (
 256-texel textures; a smoke test, not a measurement."""
 
 
-def get_suite(quick: bool = False) -> BenchSuite:
-    """The full suite, or the quick one."""
+SUITE_V2_VERSION = 1
+"""Version of suite v2 (:data:`V2_SUBJECTS`); bump it whenever one of its subjects or
+settings changes."""
+
+SPLITS = ("dev", "test")
+"""Suite v2's splits: ``dev`` subjects to choose settings on, ``test`` subjects run only to
+report a finished change."""
+
+
+def _v2(split: str, category: str, clothing: str, seed: int) -> BenchSubject:
+    short = "" if clothing == "minimal" else f"-{clothing}"
+    return BenchSubject(name=f"v2{split}-{category}{short}-s{seed}", category=category,
+                        seed=seed, clothing=clothing, capture="phone", variety="wide",
+                        from_video=True)  # fmt: skip
+
+
+V2_SUBJECTS: dict[str, tuple[BenchSubject, ...]] = {
+    "dev": (
+        _v2("dev", "minimal", "minimal", 5001),
+        _v2("dev", "clothed", "tshirt-shorts", 5002),
+        _v2("dev", "clothed", "loose", 5003),
+        _v2("dev", "clothed", "skirt", 5004),
+    ),
+    "test": (
+        _v2("test", "minimal", "minimal", 6001),
+        _v2("test", "minimal", "minimal", 6002),
+        _v2("test", "clothed", "tight", 6003),
+        _v2("test", "clothed", "tshirt-shorts", 6004),
+        _v2("test", "clothed", "longsleeve-trousers", 6005),
+        _v2("test", "clothed", "loose", 6006),
+        _v2("test", "clothed", "skirt", 6007),
+        _v2("test", "clothed", "longsleeve-trousers", 6008),
+    ),
+}
+"""Suite v2 (issue #24): wide subjects (``synth --variety wide``) filmed as a phone would
+(``--capture phone``), reconstructed from the video with its focal length and the subject's
+height; 120 frames at 540 x 540, 30 key-frames. Seeds 5001–5004 (``dev``) and 6001–6008
+(``test``) were taken in order, not picked by their look or their results."""
+
+
+def get_suite(quick: bool = False, suite: str = "v1", split: str = "test") -> BenchSuite:
+    """The full suite v1, the quick one, or a ``split`` of suite v2 (:data:`SPLITS`)."""
+    if suite == "v2":
+        if split not in SPLITS:
+            raise SuiteError(f"unknown split {split!r}; choose from {SPLITS}")
+        return BenchSuite(SUITE_V2_VERSION, f"v2-{split}", V2_SUBJECTS[split])
+    if suite != "v1":
+        raise SuiteError(f"unknown suite {suite!r}; choose from ('v1', 'v2')")
     if quick:
         return BenchSuite(SUITE_VERSION, "quick", QUICK_SUBJECTS)
     return BenchSuite(SUITE_VERSION, "full", FULL_SUBJECTS)
