@@ -370,6 +370,14 @@ def test_wide_subjects_span_the_heights_and_garments_asked(anny_local):
         assert 0.006 <= spec.top_thickness <= 0.025 and 0.006 <= spec.bottom_thickness <= 0.025
         assert 0.006 <= spec.shoe_height <= 0.02 and spec.hair_style in HAIR_STYLES
         assert np.mean(spec.shape[6:] != 0) > 0.3  # denser local changes than standard's 0.25
+        # people are nearly symmetric: each right-side local change within 0.1 of its left
+        names = anny_local.local_change_names
+        pairs = [(6 + i, 6 + names.index("r-" + n[2:])) for i, n in enumerate(names)
+                 if n.startswith("l-") and "r-" + n[2:] in names]  # fmt: skip
+        left = np.array([spec.shape[i] for i, _ in pairs])
+        right = np.array([spec.shape[j] for _, j in pairs])
+        assert len(pairs) > 50 and np.all(np.abs(right - left) <= 0.1 + 1e-12)
+        assert np.count_nonzero(left) > 10 and np.all((left == 0) == (right == 0))
     assert all(WIDE_HEIGHTS[0] <= h <= WIDE_HEIGHTS[1] for h in heights)
     assert max(heights) - min(heights) > 0.1
     standard = sample_subject(np.random.default_rng(0), anny_local, "loose")

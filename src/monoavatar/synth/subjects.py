@@ -146,6 +146,7 @@ def sample_wide_subject(rng: np.random.Generator, body: BodyModel,
         if body.shape_dim > 6:  # local changes: denser and stronger than the standard ones
             active = rng.random(body.shape_dim - 6) < 0.4
             shape[6:] = active * rng.uniform(-0.9, 0.9, body.shape_dim - 6)
+            shape[6:] = _nearly_symmetric(shape[6:], body, rng)
         with torch.no_grad():
             rest, _ = body.rest_shape(torch.as_tensor(shape, dtype=body.dtype)[None])
         if WIDE_HEIGHTS[0] <= float(np.ptp(rest[0, :, 1].numpy())) <= WIDE_HEIGHTS[1]:
@@ -172,6 +173,24 @@ def sample_wide_subject(rng: np.random.Generator, body: BodyModel,
         hair_style=str(rng.choice(HAIR_STYLES)),
         shoe_height=float(rng.uniform(0.006, 0.02)),
     )
+
+
+def _nearly_symmetric(local: np.ndarray, body: BodyModel, rng: np.random.Generator,
+                      spread: float = 0.1) -> np.ndarray:  # fmt: skip
+    """Local changes (L,) with each left/right pair (``l-…`` and ``r-…`` in the model's
+    ``local_change_names``) made nearly equal, as people are: the right side takes the left
+    side's value plus up to ±``spread`` (0 where the left one is off). Models without named
+    local changes are returned as they are."""
+    names = tuple(getattr(body, "local_change_names", ()))
+    if len(names) != len(local):
+        return local
+    out = local.copy()
+    index = {name: i for i, name in enumerate(names)}
+    for i, name in enumerate(names):
+        j = index.get("r-" + name[2:]) if name.startswith("l-") else None
+        if j is not None:
+            out[j] = local[i] + (rng.uniform(-spread, spread) if local[i] != 0 else 0.0)
+    return out
 
 
 def _hair(spec: SubjectSpec, p: np.ndarray, scalp: np.ndarray, region: dict[str, np.ndarray],
