@@ -23,8 +23,9 @@ How it is filmed follows a capture profile (:data:`~monoavatar.synth.options.CAP
 ``SynthConfig.capture``): ``studio`` (a level camera aimed at the person, one even turn) or
 ``phone`` (:class:`PhoneTake`: rolled and off-centre, an uneven turn, exposure drift, motion
 blur, a :class:`Sun` that casts shadows, a coarser video). The profile draws from a random
-stream of its own, so a studio scene is the same as before the profiles existed. The masks,
-keypoints and meshes are those of the frame's own instant (the middle of the shutter).
+stream of its own, so its draws never shift the scene's other draws (subject, camera, light,
+motion). The masks, keypoints and meshes are those of the frame's own instant (the middle of
+the shutter).
 """
 
 from __future__ import annotations
@@ -290,8 +291,8 @@ class PhoneTake:
 
 
 def _phone_take(capture: Capture, frames: int, rng: np.random.Generator) -> PhoneTake:
-    """Draw a :class:`PhoneTake` from the profile ``capture`` with ``rng`` (its own stream,
-    so that a studio take leaves every other draw of the scene as it was)."""
+    """Draw a :class:`PhoneTake` from the profile ``capture`` with ``rng`` (a stream of its
+    own, apart from the scene's other draws)."""
     turns = float(rng.uniform(capture.turns_min, capture.turns_max))
     progress = (uneven_progress(frames, capture.speed_wobble, rng)
                 if capture.speed_wobble > 0 else None)  # fmt: skip
