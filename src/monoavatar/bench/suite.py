@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import json
 import shutil
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -262,10 +262,9 @@ report a finished change."""
 
 
 def _v2(split: str, category: str, clothing: str, seed: int) -> BenchSubject:
-    short = "" if clothing == "minimal" else f"-{clothing}"
-    return BenchSubject(name=f"v2{split}-{category}{short}-s{seed}", category=category,
-                        seed=seed, clothing=clothing, capture="phone", variety="wide",
-                        from_video=True)  # fmt: skip
+    v1 = _subject(category, clothing, seed)
+    return replace(v1, name=f"v2{split}-{v1.name}", capture="phone", variety="wide",
+                   from_video=True)  # fmt: skip
 
 
 V2_SUBJECTS: dict[str, tuple[BenchSubject, ...]] = {

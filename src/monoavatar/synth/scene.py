@@ -39,6 +39,7 @@ import numpy as np
 import torch
 from PIL import Image
 from torch import Tensor
+from torch.nn import functional
 from tqdm import tqdm
 
 from monoavatar.body import MEDIAPIPE_LANDMARKS, BodyModel, lbs, load_body_model
@@ -49,6 +50,7 @@ from monoavatar.core.files import atomic_write_npz, staged_folder
 from monoavatar.io.export_mesh import write_mp4, write_obj, write_ply
 from monoavatar.render import (
     Fragments,
+    interpolate_masked,
     rasterize,
     render_textured,
     sample_sh_lighting,
@@ -248,16 +250,11 @@ def sun_shading(posed: Tensor, faces: Tensor, frags: Fragments, sun: Sun,
     ``lit`` is 0 where the mesh itself stands between the pixel's surface point and the sun,
     from a shadow map (a near-orthographic depth render ``shadow_size`` pixels wide along the
     light, depths compared with ``bias`` metres)."""
-    v = posed.double().numpy()
-    f = faces.numpy()
-    covered = frags.face_id.numpy() >= 0
-    corner = f[frags.face_id.numpy()[covered]]  # (N, 3)
-    bary = frags.bary.numpy()[covered].astype(np.float64)  # (N, 3)
-    point = np.einsum("nk,nkc->nc", bary, v[corner])
-    normal = vertex_normals(torch.as_tensor(v), faces).numpy()
-    n = np.einsum("nk,nkc->nc", bary, normal[corner])
-    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-    facing = np.clip(n @ sun.direction, 0.0, None)
+    vertices = posed.double()
+    point = interpolate_masked(vertices, faces, frags).numpy()  # (N, 3) surface points
+    normal = interpolate_masked(vertex_normals(vertices, faces), faces, frags)
+    facing = np.clip(functional.normalize(normal, dim=-1).numpy() @ sun.direction, 0.0, None)
+    v, f = vertices.numpy(), faces.numpy()
     centre = 0.5 * (v.min(0) + v.max(0))
     extent = float(np.linalg.norm(v.max(0) - v.min(0)))
     distance = 50.0 * extent  # far away: close to an orthographic view along the light

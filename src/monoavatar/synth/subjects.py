@@ -58,6 +58,11 @@ class SubjectSpec:
     extras: dict[str, float] = field(default_factory=dict)
 
 
+#: sleeve and leg lengths (fractions of shoulder→wrist, hip→ankle) of each garment set
+_LENGTHS = {"minimal": (0.0, 0.12), "tight": (0.25, 0.9), "tshirt-shorts": (0.35, 0.4),
+            "longsleeve-trousers": (0.95, 0.95), "loose": (0.6, 0.95), "skirt": (0.3, 0.35)}
+
+
 def sample_subject(
     rng: np.random.Generator, body: BodyModel, clothing: str | None = None,
     variety: str = "standard",
@@ -79,20 +84,13 @@ def sample_subject(
     if body.shape_dim > 6:  # local changes: sparse, moderate
         active = rng.random(body.shape_dim - 6) < 0.25
         shape[6:] = active * rng.uniform(-0.5, 0.5, body.shape_dim - 6)
-    sleeve, leg, top_t, bottom_t, wrinkle = 0.0, 0.0, 0.0, 0.0, 0.0
-    flare = 0.0
-    if clothing == "minimal":
-        top_t, bottom_t, leg, wrinkle = 0.002, 0.002, 0.12, 0.0005
-    elif clothing == "tight":
-        sleeve, leg, top_t, bottom_t, wrinkle = 0.25, 0.9, 0.004, 0.004, 0.001
-    elif clothing == "tshirt-shorts":
-        sleeve, leg, top_t, bottom_t, wrinkle = 0.35, 0.4, 0.010, 0.010, 0.003
-    elif clothing == "longsleeve-trousers":
-        sleeve, leg, top_t, bottom_t, wrinkle = 0.95, 0.95, 0.010, 0.012, 0.003
-    elif clothing == "loose":
-        sleeve, leg, top_t, bottom_t, wrinkle = 0.6, 0.95, 0.022, 0.018, 0.005
-    elif clothing == "skirt":
-        sleeve, leg, top_t, bottom_t, wrinkle, flare = 0.3, 0.35, 0.008, 0.008, 0.002, 0.12
+    sleeve, leg = _LENGTHS[clothing]
+    top_t, bottom_t, wrinkle = {
+        "minimal": (0.002, 0.002, 0.0005), "tight": (0.004, 0.004, 0.001),
+        "tshirt-shorts": (0.010, 0.010, 0.003), "longsleeve-trousers": (0.010, 0.012, 0.003),
+        "loose": (0.022, 0.018, 0.005), "skirt": (0.008, 0.008, 0.002),
+    }[clothing]  # fmt: skip
+    flare = 0.12 if clothing == "skirt" else 0.0
     return SubjectSpec(
         shape=shape,
         clothing=clothing,
@@ -121,9 +119,6 @@ def _appearance(rng: np.random.Generator, max_hair: float) -> dict[str, Any]:
     }
 
 
-#: sleeve and leg lengths (fractions of shoulder→wrist, hip→ankle) of each garment set
-_LENGTHS = {"minimal": (0.0, 0.12), "tight": (0.25, 0.9), "tshirt-shorts": (0.35, 0.4),
-            "longsleeve-trousers": (0.95, 0.95), "loose": (0.6, 0.95), "skirt": (0.3, 0.35)}
 WIDE_HEIGHTS = (1.50, 1.95)
 """Body heights (metres, the unclothed canonical mesh) of the wide distribution."""
 
