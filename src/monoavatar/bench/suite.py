@@ -252,7 +252,7 @@ QUICK_SUBJECTS: tuple[BenchSubject, ...] = (
 256-texel textures; a smoke test, not a measurement."""
 
 
-SUITE_V2_VERSION = 1
+SUITE_V2_VERSION = 2
 """Version of suite v2 (:data:`V2_SUBJECTS`); bump it whenever one of its subjects or
 settings changes."""
 

@@ -4,10 +4,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-FORMAT = "monoavatar-synth-3"
+FORMAT = "monoavatar-synth-4"
 """The ``format`` a scene's ``scene.json`` records; bumped whenever the same settings make a
 different scene (2: each subject's face features painted on its own face; 3: the wide
-subjects' left and right local changes nearly equal — standard scenes are as in 2)."""
+subjects' left and right local changes nearly equal; 4: the wide subjects' proportions those
+of adults — standard scenes are as in 2)."""
 KINDS: tuple[str, ...] = ("turnaround", "motion", "walk", "jog", "photo")
 CLOTHING: tuple[str, ...] = (
     "minimal", "tight", "tshirt-shorts", "longsleeve-trousers", "loose", "skirt",

@@ -19,6 +19,7 @@ from monoavatar.body import REGIONS, BodyModel
 from monoavatar.body.subdivide import Subdivision, subdivide
 from monoavatar.core.camera import PinholeCamera
 from monoavatar.render import rasterize, vertex_normals
+from monoavatar.synth.anthropometry import plausible
 from monoavatar.synth.options import CLOTHING, HAIR_STYLES, VARIETIES
 
 GARMENTS = ("skin", "top", "bottom", "hair", "shoes")
@@ -121,19 +122,22 @@ def _appearance(rng: np.random.Generator, max_hair: float) -> dict[str, Any]:
 
 WIDE_HEIGHTS = (1.50, 1.95)
 """Body heights (metres, the unclothed canonical mesh) of the wide distribution."""
+_WIDE_TRIES = 400  # draws of a wide body before giving up (about one in eleven is kept)
 
 
 def sample_wide_subject(rng: np.random.Generator, body: BodyModel,
                         clothing: str | None = None) -> SubjectSpec:  # fmt: skip
     """A subject of the harder distribution of suite v2: phenotypes across more of Anny's
-    range with the body height in :data:`WIDE_HEIGHTS` (redrawn until it is), stronger and
-    denser local changes, garments 6–25 mm thick (tight ones 4–8 mm) with deeper wrinkles and
-    lengths varied, hair 0.5–3 cm thick in one of :data:`HAIR_STYLES`, shoes 6–20 mm."""
+    range, stronger and denser local changes, the whole body redrawn until its height lies in
+    :data:`WIDE_HEIGHTS` and its proportions in the adult ranges
+    (:func:`~monoavatar.synth.anthropometry.plausible`); garments 6–25 mm thick (tight ones
+    4–8 mm) with deeper wrinkles and lengths varied, hair 0.5–3 cm thick in one of
+    :data:`HAIR_STYLES`, shoes 6–20 mm."""
     if clothing is None:
         clothing = str(rng.choice(CLOTHING))
     if clothing not in CLOTHING:
         raise ValueError(f"unknown clothing {clothing!r}; choose from {CLOTHING}")
-    for _ in range(50):
+    for _ in range(_WIDE_TRIES):
         shape = np.zeros(body.shape_dim)
         shape[:6] = rng.uniform(-0.5, 0.5, 6)  # gender, age, muscle, weight, height, proportions
         shape[0] = rng.choice([-0.45, 0.45]) + rng.uniform(-0.05, 0.05)
@@ -144,8 +148,11 @@ def sample_wide_subject(rng: np.random.Generator, body: BodyModel,
             shape[6:] = _nearly_symmetric(shape[6:], body, rng)
         with torch.no_grad():
             rest, _ = body.rest_shape(torch.as_tensor(shape, dtype=body.dtype)[None])
-        if WIDE_HEIGHTS[0] <= float(np.ptp(rest[0, :, 1].numpy())) <= WIDE_HEIGHTS[1]:
+        if (WIDE_HEIGHTS[0] <= float(np.ptp(rest[0, :, 1].numpy())) <= WIDE_HEIGHTS[1]
+                and plausible(body, shape)):
             break
+    else:
+        raise RuntimeError(f"no wide subject of plausible proportions in {_WIDE_TRIES} draws")
     sleeve, leg = (float(np.clip(x + rng.uniform(-0.08, 0.08), 0.0, 1.0)) if x > 0.0 else 0.0
                    for x in _LENGTHS[clothing])  # fmt: skip
     if clothing == "minimal":
