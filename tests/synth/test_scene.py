@@ -401,7 +401,8 @@ def test_hair_styles_put_hair_where_they_say(anny_local):
     assert hair["full"].max() > 1.5 * 0.02 and hair["bun"].max() > 0.02 + 0.035
     # long hair covers the nape, below the scalp, which the cropped style leaves bare
     nape = (built["long"].garment == 3) & ~scalp
-    assert nape.sum() > 100 and (built["long"].displacement[nape] > 0.02).mean() > 0.3
+    hang = built["long"].displacement[nape]
+    assert nape.sum() > 100 and (hang > 0.01).all() and (hang > 0.02).sum() > 50
     assert np.array_equal(built["bun"].garment == 3, scalp)  # a bun stays on the scalp
 
 
