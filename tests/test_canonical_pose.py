@@ -1,0 +1,46 @@
+"""The canonical (rest-pose) avatar is in the rest pose: reconstructed with the true poses
+and perception, each of its bones lies within a few degrees of the truth's."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from monoavatar.bench.metrics import BodyCache, Rig, load_truth, surface_metrics
+from monoavatar.io.avatar_folder import AvatarFolder
+from monoavatar.pipelines.reconstruct import ReconstructConfig, reconstruct
+from monoavatar.pipelines.stages import InputSettings
+from monoavatar.synth.scene import SynthConfig, generate
+
+pytestmark = pytest.mark.slow  # end-to-end: not in the fast tier
+
+
+@pytest.mark.parametrize(("clothing", "variety"), [("tight", "standard"), ("loose", "wide")])
+def test_true_poses_give_a_rest_pose_within_a_few_degrees_of_the_truths(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, clothing: str, variety: str) -> None:
+    monkeypatch.setenv("MONOAVATAR_CACHE", str(tmp_path / "cache"))
+    scene = tmp_path / "scene"
+    generate(scene, SynthConfig(kind="turnaround", frames=30, seed=11, width=384, height=384,
+                                clothing=clothing, variety=variety), progress=False)  # fmt: skip
+    truth_in = InputSettings(frames=30, perception="ground-truth", poses="ground-truth")
+    config = ReconstructConfig(input=truth_in, progress=False)
+    reconstruct(scene, tmp_path / "avatar", config)
+
+    bodies = BodyCache()
+    truth = load_truth(scene, bodies)
+    avatar = AvatarFolder.load(tmp_path / "avatar")
+    body = bodies.get(avatar.params.body_model)
+    with torch.no_grad():
+        shape = torch.as_tensor(avatar.params.shape, dtype=body.dtype).reshape(1, -1)
+        rest_joints = body.rest_shape(shape)[1][0].double().numpy()
+    rig = Rig(body.skin_weights.double().numpy(), rest_joints, tuple(body.parents))
+    metrics, _ = surface_metrics(avatar.vertices, avatar.faces, truth.vertices, truth.faces,
+                                 rig=rig)  # fmt: skip
+    bones = metrics.bone_angles_deg
+    assert bones is not None
+    angles = np.asarray(bones)[np.isfinite(bones)]
+    assert len(angles) >= 15
+    assert np.median(angles) <= 3.0 and angles.max() <= 8.0, np.round(angles, 1)
