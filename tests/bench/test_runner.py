@@ -231,7 +231,7 @@ def test_a_video_subject_is_reconstructed_from_its_video_with_focal_and_height(t
     scene.mkdir()
     (scene / "scene.json").write_text(json.dumps({
         "camera": {"K": [[512.5, 0, 270], [0, 512.5, 270], [0, 0, 1]]},
-        "subjects": [{"height_m": 1.83}]}))  # fmt: skip
+        "subjects": [{"height_m": 1.86, "stature_m": 1.83}]}))  # fmt: skip
     estimated, shape_only, gt = MODES
     for mode in (estimated, shape_only):
         source, video = runner._run_input(subject, mode, scene)

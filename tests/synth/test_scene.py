@@ -12,6 +12,7 @@ from PIL import Image
 from monoavatar.body import MEDIAPIPE_LANDMARKS
 from monoavatar.cli import main
 from monoavatar.core.camera import PinholeCamera
+from monoavatar.io.export_mesh import read_obj
 from monoavatar.render import rasterize
 from monoavatar.synth import scene as scene_mod
 from monoavatar.synth.scene import SynthConfig, SynthError, generate
@@ -110,6 +111,12 @@ def test_files_and_description(turnaround):
     assert (turnaround / "gt" / "subject_000" / "canonical.obj").is_file()
     assert (turnaround / "gt" / "subject_000" / "canonical.png").is_file()
     params = np.load(turnaround / "gt" / "params.npz")
+    # the stature (a person's stated height: the body without hair and shoes) lies under the
+    # clothed canonical mesh's height by at most the hair on the crown and the shoes' soles
+    canonical, _ = read_obj(turnaround / "gt" / "subject_000" / "canonical.obj")
+    subject = scene["subjects"][0]
+    assert subject["height_m"] == pytest.approx(float(np.ptp(canonical[:, 1])), abs=1e-5)
+    assert 0.0 < subject["height_m"] - subject["stature_m"] <= subject["hair_volume_m"] + 0.01
     assert params["poses"].shape == (4, 20, 3)
     with av.open(str(turnaround / "video.mp4")) as container:
         assert sum(1 for _ in container.decode(video=0)) == 4

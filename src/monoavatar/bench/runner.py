@@ -101,12 +101,13 @@ def _run_input(subject: BenchSubject, mode: BenchMode, scene: Path
                ) -> tuple[Path, tuple[float, float] | None]:  # fmt: skip
     """What a run reads: the scene folder, or, for a ``from_video`` subject's run on
     estimated poses, its ``video.mp4`` with the focal length (pixels) and the subject's
-    height (metres, the clothed canonical mesh's) from ``scene.json``."""
+    height as a person gives it (metres, the unclothed body's: ``stature_m`` of
+    ``scene.json``)."""
     if not subject.from_video or mode.poses != "fit":
         return scene, None
     info = json.loads((scene / "scene.json").read_text())
     return scene / "video.mp4", (float(info["camera"]["K"][0][0]),
-                                 float(info["subjects"][0]["height_m"]))  # fmt: skip
+                                 float(info["subjects"][0]["stature_m"]))  # fmt: skip
 
 
 @contextmanager
