@@ -479,3 +479,74 @@ def test_fit_photo_matches_one_synthetic_photo(anny32, anny_local) -> None:  # t
     none.no_person[0] = True
     with pytest.raises(PoseFitError, match="no person"):
         fit_photo(anny32, none)
+
+
+# -- frames that face against the turn --------------------------------------------------------
+
+
+def test_facing_yaw_measures_turns_about_the_cameras_up() -> None:
+    from monoavatar.fit.pose import facing_yaw, world_up
+
+    # a camera rolled by 4°: its up is not the world's +Y
+    roll = lbs.axis_angle_to_matrix(torch.tensor([0.0, 0.0, np.radians(4.0)])).numpy()
+    camera = PinholeCamera(K=np.array([[500.0, 0, 256], [0, 500.0, 256], [0, 0, 1]]),
+                           R=roll @ np.diag([1.0, -1.0, -1.0]), t=np.array([0.0, 0.0, 3.0]),
+                           width=512, height=512)  # fmt: skip
+    up = world_up(camera)
+    angles = np.radians([0.0, 30.0, 170.0, -100.0])
+    stand = lbs.axis_angle_to_matrix(torch.from_numpy(np.array([0.2, 0.0, 0.0]))).numpy()
+    roots = np.stack([lbs.matrix_to_axis_angle(torch.from_numpy(
+        lbs.axis_angle_to_matrix(torch.from_numpy(up * a)).numpy() @ stand)).numpy()
+        for a in angles])  # fmt: skip
+    yaw = facing_yaw(roots, up)
+    turned = (yaw - yaw[0] + np.pi) % (2 * np.pi) - np.pi
+    np.testing.assert_allclose(turned, angles, atol=1e-9)
+
+
+def test_half_turn_flips_finds_the_frames_that_face_against_the_turn() -> None:
+    from monoavatar.fit.pose import half_turn_flips
+
+    rng = np.random.default_rng(0)
+    # an uneven turn (8°-16° between key-frames, a little over one turn) with fitting noise
+    yaw = np.cumsum(rng.uniform(np.radians(8.0), np.radians(16.0), 30))
+    yaw += rng.normal(0.0, np.radians(3.0), 30)
+    assert not half_turn_flips(yaw, np.radians(30.0)).any()
+    assert not half_turn_flips(yaw + np.pi, np.radians(30.0)).any()  # all agree: none flipped
+    flipped = np.zeros(30, dtype=bool)
+    flipped[[0, 1, 17, 18, 19, 29]] = True  # at both ends and a run of three
+    found = half_turn_flips(yaw + np.pi * flipped, np.radians(30.0))
+    np.testing.assert_array_equal(found, flipped)
+    # a frame 50° off is a poor fit, not a flip
+    off = yaw.copy()
+    off[10] += np.radians(50.0)
+    assert not half_turn_flips(off, np.radians(30.0)).any()
+    assert not half_turn_flips(yaw[:2] + [0.0, np.pi], 0.5).any()  # too short to tell
+
+
+def test_a_fit_facing_against_the_turn_is_turned_back(anny32: BodyModel) -> None:
+    """Frame 2 of a quarter turn fitted facing backwards (its local fit from a half-turned
+    start) is found against its neighbours and re-fitted facing the right way."""
+    from monoavatar.fit import pose as posefit
+    from monoavatar.fit import pose_energy as pe
+    from monoavatar.fit.prior import apose_prior
+
+    poses = _turn_poses(anny32, 5, 20.0)
+    scene = _render_scene(anny32, poses)
+    with torch.no_grad():
+        rest, joints = anny32.rest_shape(torch.zeros(1, anny32.shape_dim, dtype=anny32.dtype))
+    ctx = pe.energy_context(anny32, scene.obs.camera, SETTINGS, apose_prior(anny32), rest[0],
+                           joints[0])  # fmt: skip
+    sub = pe.make_subset(anny32, rest[0], joints[0],
+                         pe.subset_ids(anny32, SETTINGS.silhouette_points, SETTINGS.seed))
+    start = poses.copy()
+    start[2, 0, 1] += np.pi
+    p, t, e = pe.fit_window(ctx, sub, pe.frames_at(scene.obs, np.arange(5), SETTINGS,
+                                                   anny32.dtype), start, np.zeros((5, 3)), None)
+    assert _heading_error_deg(p, poses)[2] > 120.0  # it stays facing the wrong way
+    fitted = {i: p[i] for i in range(5)}
+    trans = {i: t[i] for i in range(5)}
+    energy = np.array(e, dtype=float)
+    posefit._turn_back_flips(ctx, sub, scene.obs, SETTINGS, fitted, trans, energy)
+    heading = _heading_error_deg(np.stack([fitted[i] for i in range(5)]), poses)
+    assert heading[2] < 15.0, heading.round(1)
+    assert energy[2] < e[2]

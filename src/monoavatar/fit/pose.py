@@ -294,6 +294,41 @@ def fit_initial(
     return shape_p.detach(), poses, trans
 
 
+def facing_yaw(roots: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """(N,) radians: the direction each root rotation (N, 3) (axis-angle) turns the body's
+    front (canonical +Z) to, about the world direction ``up`` (3,), from a fixed reference."""
+    y = up / np.linalg.norm(up)
+    a = np.cross(y, [1.0, 0.0, 0.0] if abs(y[0]) < 0.9 else [0.0, 0.0, 1.0])
+    a /= np.linalg.norm(a)
+    b = np.cross(y, a)
+    front = lbs.axis_angle_to_matrix(torch.as_tensor(roots, dtype=torch.float64)).numpy()[:, :, 2]
+    return np.arctan2(front @ b, front @ a)
+
+
+def half_turn_flips(yaw: np.ndarray, penalty: float) -> np.ndarray:
+    """(N,) bool: the frames to turn by half a turn so that the facing ``yaw`` (N,) (radians,
+    frames in time order) changes least: the Viterbi path over "as fitted" and "turned by π"
+    minimising Σ |Δyaw| between neighbours (wrapped to ±π) + ``penalty`` radians per turned
+    frame. A fit that faces the wrong way between two that face right costs about 2π as
+    fitted and 2·|Δyaw| + ``penalty`` turned."""
+    n = len(yaw)
+    if n < 3:
+        return np.zeros(n, dtype=bool)
+    turn = np.array([0.0, math.pi])
+    cost = np.array([0.0, penalty])
+    back = np.zeros((n, 2), dtype=np.int64)
+    for i in range(1, n):
+        step = yaw[i] + turn[None, :] - yaw[i - 1] - turn[:, None]  # (from, to)
+        total = cost[:, None] + np.abs((step + math.pi) % (2 * math.pi) - math.pi)
+        back[i] = np.argmin(total, axis=0)
+        cost = total[back[i], [0, 1]] + np.array([0.0, penalty])
+    states = np.zeros(n, dtype=np.int64)
+    states[-1] = int(np.argmin(cost))
+    for i in range(n - 1, 0, -1):
+        states[i - 1] = back[i, states[i]]
+    return states.astype(bool)
+
+
 def _predict(poses: list[np.ndarray], trans: list[np.ndarray], steps: int) -> tuple[np.ndarray,
                                                                                    np.ndarray]:
     """Constant-velocity prediction of ``steps`` further frames from the fitted ones: the root
@@ -413,6 +448,10 @@ def _fit_poses(body: BodyModel, obs: Observations, settings: PoseSettings,
         history.extend(e_out.tolist())
         bar.set_postfix(energy=f"{np.median(e_out):.2f}")
     timings["track"] = time.perf_counter() - t0
+    if settings.flip_penalty_deg is not None:
+        t0 = time.perf_counter()
+        _turn_back_flips(ctx, sub, obs, settings, poses, trans, energy)
+        timings["flips"] = time.perf_counter() - t0
 
     all_poses = np.zeros((n, body.num_joints, 3))
     all_trans = np.zeros((n, 3))
@@ -562,6 +601,35 @@ def _refine_poses(body: BodyModel, obs: Observations, track: PoseTrack,
         energy=energy, failed=failed, seconds=track.seconds + time.perf_counter() - start,
         timings={**track.timings, "refine": seconds},
     )  # fmt: skip
+
+
+def _turn_back_flips(ctx: pe.EnergyContext, sub: pe.Subset, obs: Observations,
+                     settings: PoseSettings, poses: dict[int, np.ndarray],
+                     trans: dict[int, np.ndarray], energy: np.ndarray) -> None:  # fmt: skip
+    """Re-fit, turned by half a turn, the frames whose facing breaks the sequence's turn
+    (:func:`half_turn_flips`), keypoints as detected and exchanged left for right; the re-fit
+    replaces the frame's pose unless its energy exceeds ``settings.flip_energy_factor`` times
+    the frame's (in place)."""
+    order = sorted(poses)
+    up = world_up(ctx.camera)
+    yaw = facing_yaw(np.stack([poses[i][0] for i in order]), up)
+    flips = half_turn_flips(yaw, math.radians(float(settings.flip_penalty_deg or 0.0)))
+    for k in np.flatnonzero(flips):
+        i = order[k]
+        frame = pe.frames_at(obs, np.array([i]), settings, ctx.body.dtype)
+        swapped = pe.Frames(frame.keypoints[:, list(MEDIAPIPE_MIRROR)], frame.targets)
+        start = poses[i].copy()
+        root = lbs.axis_angle_to_matrix(torch.from_numpy(start[0])).numpy()
+        start[0] = lbs.matrix_to_axis_angle(torch.from_numpy(_turn(up, math.pi) @ root)).numpy()
+        best = None
+        for seen in (frame, swapped):
+            p, t, e = pe.fit_window(ctx, sub, seen, start[None], trans[i][None], None,
+                                    2 * settings.iterations)  # fmt: skip
+            if best is None or float(e[0]) < best[2]:
+                best = (p[0], t[0], float(e[0]))
+        assert best is not None
+        if best[2] <= settings.flip_energy_factor * energy[i]:
+            poses[i], trans[i], energy[i] = best
 
 
 def refit_frame(ctx: pe.EnergyContext, sub: pe.Subset, frame: pe.Frames, pose: np.ndarray,

@@ -77,6 +77,8 @@ class PoseSettings:
     boundary_points: int = 300
     threads: int = 1  # PyTorch threads while fitting (small tensors: one is fastest)
     refit_factor: float = 3.0
+    flip_penalty_deg: float | None = 30.0  # None: keep frames that face against the turn
+    flip_energy_factor: float = 3.0
     fail_energy: float = 20.0
     seed: int = 0
 
