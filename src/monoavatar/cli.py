@@ -185,8 +185,9 @@ def _add_input_options(p: argparse.ArgumentParser) -> None:
                    help="output folder (created; existing result files are replaced)")  # fmt: skip
     _option(p, "--frames", InputSettings, "frames",
             "key-frames to use, spread evenly over the input", type=int)  # fmt: skip
-    _option(p, "--height", PoseSettings, "height", "the person's height in metres, e.g. 1.75; "
-            "without it the result is up to scale (an average height is assumed)", type=float,
+    _option(p, "--height", PoseSettings, "height", "the person's height in metres, standing "
+            "without shoes, e.g. 1.75; without it the result is up to scale (an average height "
+            "is assumed)", type=float,
             metavar="M")  # fmt: skip
     _option(p, "--focal", InputSettings, "focal", "focal length in pixels (None: a 68 degree "
             "diagonal field of view, typical of phone cameras; a synth or People-Snapshot "
