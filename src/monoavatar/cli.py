@@ -1034,7 +1034,8 @@ def _add_bench(p: argparse.ArgumentParser) -> None:
         "results.json, results.md (a table beside Table B.1 of the dissertation) and "
         "per-vertex error heat maps. The texture PSNR poses each finished avatar in frames it "
         "was not built from with our tracker (the key-frames' poses interpolated, then flow "
-        "rounds on those frames). The full suite takes about 35 minutes on 2 CPU cores.")
+        "rounds on those frames). Suite v1 takes about 40 minutes on 2 CPU cores, suite v2's "
+        "dev split about 20 and its test split about 40.")
     p.add_argument("-o", "--output", type=Path, default=Path("out/bench"),
                    help="output folder (default: %(default)s)")  # fmt: skip
     p.add_argument("--quick", action="store_true",
