@@ -546,7 +546,7 @@ def test_a_fit_facing_against_the_turn_is_turned_back(anny32: BodyModel) -> None
     fitted = {i: p[i] for i in range(5)}
     trans = {i: t[i] for i in range(5)}
     energy = np.array(e, dtype=float)
-    posefit._turn_back_flips(ctx, sub, scene.obs, SETTINGS, fitted, trans, energy)
+    posefit._turn_back_flips(ctx, sub, scene.obs, np.radians(30.0), fitted, trans, energy)
     heading = _heading_error_deg(np.stack([fitted[i] for i in range(5)]), poses)
     assert heading[2] < 15.0, heading.round(1)
     assert energy[2] < e[2]

@@ -450,7 +450,8 @@ def _fit_poses(body: BodyModel, obs: Observations, settings: PoseSettings,
     timings["track"] = time.perf_counter() - t0
     if settings.flip_penalty_deg is not None:
         t0 = time.perf_counter()
-        _turn_back_flips(ctx, sub, obs, settings, poses, trans, energy)
+        _turn_back_flips(ctx, sub, obs, math.radians(settings.flip_penalty_deg), poses, trans,
+                         energy)  # fmt: skip
         timings["flips"] = time.perf_counter() - t0
 
     all_poses = np.zeros((n, body.num_joints, 3))
@@ -603,33 +604,35 @@ def _refine_poses(body: BodyModel, obs: Observations, track: PoseTrack,
     )  # fmt: skip
 
 
-def _turn_back_flips(ctx: pe.EnergyContext, sub: pe.Subset, obs: Observations,
-                     settings: PoseSettings, poses: dict[int, np.ndarray],
-                     trans: dict[int, np.ndarray], energy: np.ndarray) -> None:  # fmt: skip
+def _turned(pose: np.ndarray, up: np.ndarray, angle: float) -> np.ndarray:
+    """A copy of ``pose`` (J, 3) with its root turned by ``angle`` radians about ``up``."""
+    out = pose.copy()
+    root = lbs.axis_angle_to_matrix(torch.from_numpy(pose[0])).numpy()
+    out[0] = lbs.matrix_to_axis_angle(torch.from_numpy(_turn(up, angle) @ root)).numpy()
+    return out
+
+
+def _turn_back_flips(ctx: pe.EnergyContext, sub: pe.Subset, obs: Observations, penalty: float,
+                     poses: dict[int, np.ndarray], trans: dict[int, np.ndarray],
+                     energy: np.ndarray) -> None:  # fmt: skip
     """Re-fit, turned by half a turn, the frames whose facing breaks the sequence's turn
-    (:func:`half_turn_flips`), keypoints as detected and exchanged left for right; the re-fit
-    replaces the frame's pose unless its energy exceeds ``settings.flip_energy_factor`` times
-    the frame's (in place)."""
+    (:func:`half_turn_flips` with ``penalty`` radians), keypoints as detected and exchanged left
+    for right; the re-fit replaces the frame's pose unless its energy exceeds
+    ``flip_energy_factor`` times the frame's (``poses``, ``trans``, ``energy`` in place)."""
+    settings = ctx.settings
     order = sorted(poses)
     up = world_up(ctx.camera)
-    yaw = facing_yaw(np.stack([poses[i][0] for i in order]), up)
-    flips = half_turn_flips(yaw, math.radians(float(settings.flip_penalty_deg or 0.0)))
+    flips = half_turn_flips(facing_yaw(np.stack([poses[i][0] for i in order]), up), penalty)
     for k in np.flatnonzero(flips):
         i = order[k]
         frame = pe.frames_at(obs, np.array([i]), settings, ctx.body.dtype)
         swapped = pe.Frames(frame.keypoints[:, list(MEDIAPIPE_MIRROR)], frame.targets)
-        start = poses[i].copy()
-        root = lbs.axis_angle_to_matrix(torch.from_numpy(start[0])).numpy()
-        start[0] = lbs.matrix_to_axis_angle(torch.from_numpy(_turn(up, math.pi) @ root)).numpy()
-        best = None
-        for seen in (frame, swapped):
-            p, t, e = pe.fit_window(ctx, sub, seen, start[None], trans[i][None], None,
-                                    2 * settings.iterations)  # fmt: skip
-            if best is None or float(e[0]) < best[2]:
-                best = (p[0], t[0], float(e[0]))
-        assert best is not None
-        if best[2] <= settings.flip_energy_factor * energy[i]:
-            poses[i], trans[i], energy[i] = best
+        start = _turned(poses[i], up, math.pi)[None]
+        fits = [pe.fit_window(ctx, sub, seen, start, trans[i][None], None, 2 * settings.iterations)
+                for seen in (frame, swapped)]  # fmt: skip
+        p, t, e = min(fits, key=lambda fit: float(fit[2][0]))
+        if float(e[0]) <= settings.flip_energy_factor * energy[i]:
+            poses[i], trans[i], energy[i] = p[0], t[0], float(e[0])
 
 
 def refit_frame(ctx: pe.EnergyContext, sub: pe.Subset, frame: pe.Frames, pose: np.ndarray,
@@ -640,17 +643,11 @@ def refit_frame(ctx: pe.EnergyContext, sub: pe.Subset, frame: pe.Frames, pose: n
     what explains the frame best (judged on the keypoints as detected, either way round)."""
     best = (pose, trans, value)
     up = world_up(ctx.camera)
-    root = lbs.axis_angle_to_matrix(torch.from_numpy(pose[0])).numpy()
-
-    def turned(angle: float) -> np.ndarray:
-        out = pose.copy()
-        out[0] = lbs.matrix_to_axis_angle(torch.from_numpy(_turn(up, angle) @ root)).numpy()
-        return out
-
     swapped = pe.Frames(frame.keypoints[:, list(MEDIAPIPE_MIRROR)], frame.targets)
-    half = turned(math.pi)
+    half = _turned(pose, up, math.pi)
+    quarters = (_turned(pose, up, math.pi / 2), _turned(pose, up, -math.pi / 2))
     starts = ((half, frame), (half, swapped), (pose, swapped),
-              (turned(math.pi / 2), frame), (turned(-math.pi / 2), frame))  # fmt: skip
+              (quarters[0], frame), (quarters[1], frame))  # fmt: skip
     for start, obs in starts:
         p, t, e = pe.fit_window(ctx, sub, obs, start[None], trans[None], None,
                               2 * ctx.settings.iterations)  # fmt: skip
