@@ -30,10 +30,6 @@ ADULT_PROPORTIONS: dict[str, tuple[float, float]] = {
     "shoulder_width": (0.168, 0.273),
 }
 
-_SIDES = {"foot_length": "ankle", "foot_breadth": "ankle", "hand_length": "wrist",
-          "arm_length": "shoulder", "leg_length": "hip"}  # fmt: skip
-
-
 def body_proportions(vertices: np.ndarray, joints: np.ndarray, part: np.ndarray,
                      joint_names: tuple[str, ...]) -> dict[str, float]:  # fmt: skip
     """Proportions of a body standing in the rest pose (+Y up, facing +Z), metres in.
