@@ -8,6 +8,7 @@ from monoavatar.synth.anthropometry import (
     ADULT_PROPORTIONS,
     adult_proportion_ranges,
     body_proportions,
+    measure_body,
     plausible,
 )
 
@@ -60,12 +61,12 @@ def test_the_adult_ranges_are_the_phenotype_corners_and_reject_caricatures(anny_
     # human foot length is about 0.15 of the stature: the range holds it and not a fifth
     assert ADULT_PROPORTIONS["foot_length"][0] < 0.15 < ADULT_PROPORTIONS["foot_length"][1] < 0.18
     shape = np.zeros(anny_local.shape_dim)
-    assert plausible(anny_local, shape)
+    assert plausible(measure_body(anny_local, shape)[1])
     names = anny_local.local_change_names
     for change in ("foot-scale-incr", "foot-scale-horiz-incr"):
         big = shape.copy()
         big[6 + names.index("l-" + change)] = big[6 + names.index("r-" + change)] = 0.9
-        assert not plausible(anny_local, big), change
+        assert not plausible(measure_body(anny_local, big)[1]), change
 
 
 def test_wide_subjects_have_adult_proportions(anny_local):

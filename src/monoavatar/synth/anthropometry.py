@@ -14,7 +14,8 @@ import torch
 
 from monoavatar.body import BodyModel
 
-__all__ = ["ADULT_PROPORTIONS", "adult_proportion_ranges", "body_proportions", "plausible"]
+__all__ = ["ADULT_PROPORTIONS", "adult_proportion_ranges", "body_proportions", "measure_body",
+           "plausible"]
 
 #: Name → (low, high): each proportion's span over the corners of Anny's adult phenotype box
 #: (:func:`adult_proportion_ranges`). Lengths are fractions of the stature (the rest pose's
@@ -73,21 +74,23 @@ def body_proportions(vertices: np.ndarray, joints: np.ndarray, part: np.ndarray,
     return out
 
 
-def _proportions_of(body: BodyModel, shape: np.ndarray) -> dict[str, float]:
-    """:func:`body_proportions` of ``body`` with (S,) ``shape`` in its rest pose."""
+def measure_body(body: BodyModel, shape: np.ndarray) -> tuple[float, dict[str, float]]:
+    """The stature (metres: the rest pose's height, soles to the top of the head) and the
+    :func:`body_proportions` of ``body`` with (S,) ``shape``, from one rest-pose evaluation."""
     with torch.no_grad():
         vertices, joints = body.rest_shape(torch.as_tensor(shape, dtype=body.dtype)[None])
+    v = vertices[0].double().numpy()
     part = body.skin_weights.argmax(dim=1).numpy()
-    return body_proportions(vertices[0].double().numpy(), joints[0].double().numpy(), part,
-                            tuple(body.joint_names))  # fmt: skip
+    return float(np.ptp(v[:, 1])), body_proportions(v, joints[0].double().numpy(), part,
+                                                    tuple(body.joint_names))  # fmt: skip
 
 
-def plausible(body: BodyModel, shape: np.ndarray,
+def plausible(proportions: dict[str, float],
               ranges: dict[str, tuple[float, float]] | None = None) -> bool:  # fmt: skip
-    """Whether every proportion of ``body`` with (S,) ``shape`` lies in ``ranges`` (default
-    :data:`ADULT_PROPORTIONS`); True for a body model without Anny's joint names."""
+    """Whether every one of ``proportions`` (:func:`body_proportions`) lies in ``ranges``
+    (default :data:`ADULT_PROPORTIONS`); True for none (a skeleton without Anny's names)."""
     ranges = ADULT_PROPORTIONS if ranges is None else ranges
-    for key, value in _proportions_of(body, shape).items():
+    for key, value in proportions.items():
         low, high = ranges[key.split("/")[0]]
         if not low <= value <= high:
             return False
@@ -102,6 +105,6 @@ def adult_proportion_ranges(body: BodyModel) -> dict[str, tuple[float, float]]:
     for corner in itertools.product((-0.5, 0.5), (-0.1, 0.35), *[(-0.5, 0.5)] * 4):
         shape = np.zeros(body.shape_dim)
         shape[:6] = corner
-        for key, value in _proportions_of(body, shape).items():
+        for key, value in measure_body(body, shape)[1].items():
             values.setdefault(key.split("/")[0], []).append(value)
     return {key: (min(v), max(v)) for key, v in values.items()}

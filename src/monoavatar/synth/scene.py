@@ -56,6 +56,7 @@ from monoavatar.render import (
     sample_sh_lighting,
     vertex_normals,
 )
+from monoavatar.synth.anthropometry import measure_body
 from monoavatar.synth.options import (
     BACKGROUNDS,
     CAPTURES,
@@ -413,14 +414,6 @@ def contact_sheet(images: list[np.ndarray], columns: int = 6, width: int = 180) 
     return np.concatenate(rows, axis=0)
 
 
-def _stature(body: BodyModel, shape: Tensor) -> float:
-    """The unclothed body's standing height, metres (soles to the top of the head; no hair or
-    shoes): what a person gives as their height. ``shape`` (1, S)."""
-    with torch.no_grad():
-        rest, _ = body.rest_shape(shape)
-    return float(np.ptp(rest[0, :, 1].numpy()))
-
-
 def generate(
     out_dir: str | Path,
     config: SynthConfig,
@@ -572,7 +565,8 @@ def _generate_into(
                 "hair_volume_m": spec.hair_volume,
                 "hair_style": spec.hair_style,
                 "height_m": float(np.ptp(subjects[s].rest_vertices[:, 1].numpy())),
-                "stature_m": _stature(body, subjects[s].shape),
+                # the body without hair and shoes: what a person gives as their height
+                "stature_m": measure_body(body, subjects[s].shape[0].numpy())[0],
             }
             for s, spec in enumerate(specs)
         ],  # fmt: skip

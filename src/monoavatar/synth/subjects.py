@@ -19,7 +19,7 @@ from monoavatar.body import REGIONS, BodyModel
 from monoavatar.body.subdivide import Subdivision, subdivide
 from monoavatar.core.camera import PinholeCamera
 from monoavatar.render import rasterize, vertex_normals
-from monoavatar.synth.anthropometry import plausible
+from monoavatar.synth.anthropometry import measure_body, plausible
 from monoavatar.synth.options import CLOTHING, HAIR_STYLES, VARIETIES
 
 GARMENTS = ("skin", "top", "bottom", "hair", "shoes")
@@ -122,7 +122,7 @@ def _appearance(rng: np.random.Generator, max_hair: float) -> dict[str, Any]:
 
 WIDE_HEIGHTS = (1.50, 1.95)
 """Body heights (metres, the unclothed canonical mesh) of the wide distribution."""
-_WIDE_TRIES = 400  # draws of a wide body before giving up (about one in eleven is kept)
+_WIDE_TRIES = 400  # draws of a wide body before giving up
 
 
 def sample_wide_subject(rng: np.random.Generator, body: BodyModel,
@@ -146,10 +146,8 @@ def sample_wide_subject(rng: np.random.Generator, body: BodyModel,
             active = rng.random(body.shape_dim - 6) < 0.4
             shape[6:] = active * rng.uniform(-0.9, 0.9, body.shape_dim - 6)
             shape[6:] = _nearly_symmetric(shape[6:], body, rng)
-        with torch.no_grad():
-            rest, _ = body.rest_shape(torch.as_tensor(shape, dtype=body.dtype)[None])
-        if (WIDE_HEIGHTS[0] <= float(np.ptp(rest[0, :, 1].numpy())) <= WIDE_HEIGHTS[1]
-                and plausible(body, shape)):
+        stature, proportions = measure_body(body, shape)
+        if WIDE_HEIGHTS[0] <= stature <= WIDE_HEIGHTS[1] and plausible(proportions):
             break
     else:
         raise RuntimeError(f"no wide subject of plausible proportions in {_WIDE_TRIES} draws")
