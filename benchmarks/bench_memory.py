@@ -49,7 +49,8 @@ def main() -> None:
 
         generate(args.scene, SynthConfig(kind="turnaround", frames=args.frames, seed=0))
     info = json.loads((args.scene / "scene.json").read_text())
-    focal, height = info["camera"]["K"][0][0], info["subjects"][0]["height_m"]
+    subject = info["subjects"][0]  # the stated height: standing, without shoes
+    focal, height = info["camera"]["K"][0][0], subject.get("stature_m", subject["height_m"])
     rows = []
     for k in sorted(set(min(k, args.frames) for k in args.keyframes)):
         with tempfile.TemporaryDirectory(dir=args.out) as tmp:

@@ -78,7 +78,8 @@ def main() -> None:
             generate(args.scene, SynthConfig(kind="turnaround", frames=args.frames, seed=0))
         info = json.loads((args.scene / "scene.json").read_text())
         focal = float(info["camera"]["K"][0][0])
-        height = float(info["subjects"][0]["height_m"])
+        subject = info["subjects"][0]  # the stated height: standing, without shoes
+        height = float(subject.get("stature_m", subject["height_m"]))
         source: Path = args.scene / "video.mp4"
         config = replace(config, input=InputSettings(frames=args.frames, focal=focal),
                          pose=replace(base.pose, height=height))  # fmt: skip

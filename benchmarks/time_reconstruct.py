@@ -42,7 +42,9 @@ def main() -> None:
 
         generate(args.scene, SynthConfig(kind="turnaround", frames=args.frames, seed=args.seed))
     info = json.loads((args.scene / "scene.json").read_text())
-    focal, height = info["camera"]["K"][0][0], info["subjects"][0]["height_m"]
+    # the height a person states (standing, without shoes); scenes before format 4 lack it
+    subject = info["subjects"][0]
+    focal, height = info["camera"]["K"][0][0], subject.get("stature_m", subject["height_m"])
     rows = []
     for k in range(args.repeat):
         out, cache = args.out / f"run{k}", args.out / "cache"

@@ -55,3 +55,33 @@ def test_default_names_match_the_estimators() -> None:
 
     for method in ("dis", "deepflow"):
         assert flow_estimator_name(method) == make_flow_estimator(method).name
+
+
+def test_flow_near_a_region_recovers_the_translation_inside_its_box() -> None:
+    # a 96 x 64 px patch of moving texture in a 256 px image: the flow is computed on the
+    # patch's box grown by the margin, zero outside that box
+    shift = np.array([1.7, 0.8])
+    a = _texture((256, 256), 0.0, 0.0)
+    b = _texture((256, 256), *shift)
+    region = np.zeros((256, 256), bool)
+    region[100:196, 120:184] = True
+    flow = DISFlow().estimate_near(a, b, region, margin=24)
+    assert flow.shape == (256, 256, 2) and flow.dtype == np.float32
+    error = np.linalg.norm(flow[region] - shift, axis=1)
+    assert np.median(error) < 0.1
+    outside = np.ones((256, 256), bool)
+    outside[100 - 24 : 196 + 24, 120 - 24 : 184 + 24] = False
+    assert not flow[outside].any()
+    assert not DISFlow().estimate_near(a, b, np.zeros((256, 256), bool)).any()
+    with pytest.raises(ValueError, match="region must have shape"):
+        DISFlow().estimate_near(a, b, region[:10])
+
+
+def test_region_box_grows_by_the_margin_and_clips_to_the_image() -> None:
+    from monoavatar.perception.flow import region_box
+
+    region = np.zeros((50, 40), bool)
+    region[10:20, 30:35] = True
+    assert region_box(region, 5) == (slice(5, 25), slice(25, 40))
+    assert region_box(region, 0) == (slice(10, 20), slice(30, 35))
+    assert region_box(np.zeros((5, 5), bool), 3) is None

@@ -305,7 +305,8 @@ def _refine(body: BodyModel, obs: Observations, images: np.ndarray, track: posef
         verts = out.vertices[0].double().numpy()
         frags = rasterize(verts, faces, camera)
         render = render_over_image(verts, faces, frags, uv, face_uv, tex, images[i], sh=sh)
-        flow = DISFlow(settings.preset).estimate(render, images[i])
+        drawn = frags.face_id.numpy() >= 0
+        flow = DISFlow(settings.preset).estimate_near(render, images[i], drawn)
         inside_px = inside_distance(frags)  # for both the flow's margin and the outline
         targets, valid = flow_correspondences(verts[point_ids], camera, frags, flow,
                                               obs.masks[i], settings, inside_px)  # fmt: skip

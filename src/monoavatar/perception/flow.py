@@ -54,6 +54,44 @@ class DISFlow:
             raise ValueError(f"flow needs images of one size, got {a.shape} and {b.shape}")
         return np.asarray(self._dis.calc(a, b, None), dtype=np.float32)
 
+    def estimate_near(self, image0: np.ndarray, image1: np.ndarray, region: np.ndarray,
+                      margin: int = 32) -> np.ndarray:  # fmt: skip
+        """Forward flow where it is needed: computed on the bounding box of ``region`` grown by
+        ``margin`` pixels (the whole image when that box covers it), zero outside the box.
+
+        Args:
+            image0, image1: (H, W, 3) uint8 RGB.
+            region: (H, W) bool, the pixels whose flow is wanted.
+            margin: pixels of context around the region's box (more than the longest flow
+                wanted, so that the patches at its edge still see their match).
+        Returns:
+            (H, W, 2) float32 forward flow, pixels.
+        """
+        region = np.asarray(region, dtype=bool)
+        h, w = np.asarray(image0).shape[:2]
+        if region.shape != (h, w):
+            raise ValueError(f"region must have shape {(h, w)}, got {region.shape}")
+        out = np.zeros((h, w, 2), np.float32)
+        box = region_box(region, margin)
+        if box is None:
+            return out
+        rows, cols = box
+        out[rows, cols] = self.estimate(np.ascontiguousarray(image0[rows, cols]),
+                                        np.ascontiguousarray(image1[rows, cols]))  # fmt: skip
+        return out
+
+
+def region_box(region: np.ndarray, margin: int) -> tuple[slice, slice] | None:
+    """The (rows, cols) slices of the bounding box of ``region`` (H, W) bool grown by
+    ``margin`` pixels and clipped to the image; None when the region is empty."""
+    rows = np.flatnonzero(region.any(axis=1))
+    if rows.size == 0:
+        return None
+    cols = np.flatnonzero(region.any(axis=0))
+    h, w = region.shape
+    return (slice(max(0, int(rows[0]) - margin), min(h, int(rows[-1]) + 1 + margin)),
+            slice(max(0, int(cols[0]) - margin), min(w, int(cols[-1]) + 1 + margin)))  # fmt: skip
+
 
 class DeepFlow:
     """OpenCV-contrib's DeepFlow (Weinzaepfel et al. 2013): slower, more accurate."""

@@ -542,7 +542,7 @@ def build_texture(
         flow = None
         if so_far is not None:  # step 6: where the texture so far lies in this frame
             render = render_over_image(verts[i], f, frags, t, fu, so_far, imgs[i], sh=sh_i)
-            flow = DISFlow("medium").estimate(render, imgs[i])
+            flow = DISFlow("medium").estimate_near(render, imgs[i], frags.face_id.numpy() >= 0)
             flow[np.linalg.norm(flow, axis=2) > settings.max_flow] = 0.0
         views = _view_samples(atlas, corners, f, verts[i], imgs[i], msks[i], cams[i], sh_i,
                               settings, flow, frags)  # fmt: skip
