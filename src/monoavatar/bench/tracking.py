@@ -79,7 +79,8 @@ def run_tracking_bench(out_dir: str | Path, *, quick: bool = False, progress: bo
         info = json.loads((scene / "scene.json").read_text())
         config = TrackConfig(progress=progress)
         config.input = replace(config.input, perception="mediapipe")  # track's own otherwise
-        config.track.pose.height = float(info["subjects"][0]["height_m"])
+        subject = info["subjects"][0]  # the height a person states: standing, without shoes
+        config.track.pose.height = float(subject.get("stature_m", subject["height_m"]))
         folder = out / "tracking" / sequence.name
         if folder.exists():
             shutil.rmtree(folder)
