@@ -623,36 +623,51 @@ def _turn_back_flips(ctx: pe.EnergyContext, sub: pe.Subset, obs: Observations, p
     order = sorted(poses)
     up = world_up(ctx.camera)
     flips = half_turn_flips(facing_yaw(np.stack([poses[i][0] for i in order]), up), penalty)
-    for k in np.flatnonzero(flips):
-        i = order[k]
-        frame = pe.frames_at(obs, np.array([i]), settings, ctx.body.dtype)
-        swapped = pe.Frames(frame.keypoints[:, list(MEDIAPIPE_MIRROR)], frame.targets)
-        start = _turned(poses[i], up, math.pi)[None]
-        fits = [pe.fit_window(ctx, sub, seen, start, trans[i][None], None, 2 * settings.iterations)
-                for seen in (frame, swapped)]  # fmt: skip
-        p, t, e = min(fits, key=lambda fit: float(fit[2][0]))
-        if float(e[0]) <= settings.flip_energy_factor * energy[i]:
-            poses[i], trans[i], energy[i] = p[0], t[0], float(e[0])
+    flipped = [order[k] for k in np.flatnonzero(flips)]
+    if not flipped:
+        return
+    # every flagged frame turned by half a turn, keypoints as detected and exchanged: one batch
+    frames = pe.frames_at(obs, np.array(flipped), settings, ctx.body.dtype)
+    rows = [k for k in range(len(flipped)) for _ in range(2)]
+    starts = np.stack([_turned(poses[flipped[k]], up, math.pi) for k in rows])
+    p, t, e = _fit_starts(ctx, sub, frames, rows, [False, True] * len(flipped), starts,
+                          np.stack([trans[flipped[k]] for k in rows]), 2 * settings.iterations)
+    for k, i in enumerate(flipped):
+        best = 2 * k + int(e[2 * k + 1] < e[2 * k])
+        if float(e[best]) <= settings.flip_energy_factor * energy[i]:
+            poses[i], trans[i], energy[i] = p[best], t[best], float(e[best])
+
+
+def _fit_starts(ctx: pe.EnergyContext, sub: pe.Subset, frames: pe.Frames, rows: list[int],
+                swap: list[bool], poses: np.ndarray, trans: np.ndarray, iterations: int
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """Independent fits from S starts in one batch (:func:`pe.fit_frames`): start k fits frame
+    ``rows[k]`` of ``frames`` from ``poses[k]`` (J, 3) and ``trans[k]`` (3,), with that frame's
+    keypoints exchanged left for right where ``swap[k]``. Returns poses (S, J, 3),
+    translations (S, 3) and energies (S,)."""
+    sub_s, frames_s = pe.select_frames(sub, frames, torch.as_tensor(rows, dtype=torch.int64))
+    kp = frames_s.keypoints
+    kp = torch.where(torch.as_tensor(swap)[:, None, None], kp[:, list(MEDIAPIPE_MIRROR)], kp)
+    return pe.fit_frames(ctx, sub_s, pe.Frames(kp, frames_s.targets), poses, trans, iterations)
 
 
 def refit_frame(ctx: pe.EnergyContext, sub: pe.Subset, frame: pe.Frames, pose: np.ndarray,
                  trans: np.ndarray, value: float) -> tuple[np.ndarray, np.ndarray, float]:
     """Try alternative starts for one frame: turned by half a turn about the vertical (also
     with the keypoints' left and right exchanged), the keypoints exchanged alone, and turned by
-    a quarter turn either way (side views, where a fit can stall half-way through a turn); keep
-    what explains the frame best (judged on the keypoints as detected, either way round)."""
+    a quarter turn either way (side views, where a fit can stall half-way through a turn),
+    fitted side by side in one batch; keep what explains the frame best (judged on the
+    keypoints as detected, either way round)."""
     best = (pose, trans, value)
     up = world_up(ctx.camera)
-    swapped = pe.Frames(frame.keypoints[:, list(MEDIAPIPE_MIRROR)], frame.targets)
     half = _turned(pose, up, math.pi)
-    quarters = (_turned(pose, up, math.pi / 2), _turned(pose, up, -math.pi / 2))
-    starts = ((half, frame), (half, swapped), (pose, swapped),
-              (quarters[0], frame), (quarters[1], frame))  # fmt: skip
-    for start, obs in starts:
-        p, t, e = pe.fit_window(ctx, sub, obs, start[None], trans[None], None,
-                              2 * ctx.settings.iterations)  # fmt: skip
-        if float(e[0]) < 0.7 * best[2]:  # a clear improvement only: no flip on a whim
-            best = (p[0], t[0], float(e[0]))
+    starts = np.stack([half, half, pose, _turned(pose, up, math.pi / 2),
+                       _turned(pose, up, -math.pi / 2)])  # fmt: skip
+    p, t, e = _fit_starts(ctx, sub, frame, [0] * 5, [False, True, True, False, False], starts,
+                          np.repeat(trans[None], 5, 0), 2 * ctx.settings.iterations)  # fmt: skip
+    for k in range(5):  # in this order, a clear improvement only: no flip on a whim
+        if float(e[k]) < 0.7 * best[2]:
+            best = (p[k], t[k], float(e[k]))
     return best
 
 

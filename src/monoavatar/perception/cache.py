@@ -25,7 +25,7 @@ import numpy as np
 from monoavatar.core.files import atomic_write_bytes
 
 CACHE_ENV = "MONOAVATAR_CACHE"
-_CACHE_VERSION = "perception-v2"
+_CACHE_VERSION = "perception-v1"
 
 
 def cache_root() -> Path:

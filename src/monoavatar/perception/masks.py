@@ -191,7 +191,7 @@ def fill_holes(mask: np.ndarray, max_hole_fraction: float = 0.01) -> np.ndarray:
 
 
 def grabcut_refine(
-    image: np.ndarray, mask: np.ndarray, band_px: int = 8, iterations: int = 2
+    image: np.ndarray, mask: np.ndarray, band_px: int = 8, iterations: int = 3
 ) -> np.ndarray:
     """Refine a mask's boundary with GrabCut, deciding only pixels near the boundary.
 
