@@ -48,9 +48,10 @@ def main() -> None:
         from monoavatar.synth.scene import SynthConfig, generate
 
         generate(args.scene, SynthConfig(kind="turnaround", frames=args.frames, seed=0))
+    from monoavatar.datasets.synth_scene import stated_height
+
     info = json.loads((args.scene / "scene.json").read_text())
-    subject = info["subjects"][0]  # the stated height: standing, without shoes
-    focal, height = info["camera"]["K"][0][0], subject.get("stature_m", subject["height_m"])
+    focal, height = info["camera"]["K"][0][0], stated_height(info)
     rows = []
     for k in sorted(set(min(k, args.frames) for k in args.keyframes)):
         with tempfile.TemporaryDirectory(dir=args.out) as tmp:

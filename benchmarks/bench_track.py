@@ -31,6 +31,7 @@ import torch
 
 from monoavatar.body import load_body_model
 from monoavatar.core.landmarks import LIMB_LANDMARKS
+from monoavatar.datasets.synth_scene import stated_height
 from monoavatar.eval.joints import tracking_errors
 from monoavatar.fit.pose import PoseSettings, fit_poses
 from monoavatar.fit.tracking import TrackSettings, track_motion
@@ -126,8 +127,7 @@ def run(scene: Path, variants: tuple[str, ...], lifter: Path | None = None,
     perception_s = time.perf_counter() - t0
     obs = inputs.observations
     info = json.loads((scene / "scene.json").read_text())
-    subject = info["subjects"][0]  # the height a person states: standing, without shoes
-    height = float(subject.get("stature_m", subject["height_m"]))
+    height = stated_height(info)
     truth = np.load(scene / "gt" / "params.npz")["joints_camera"][obs.frame_indices]
     body = load_body_model("anny")
     sel = [body.joint_index(j) for j in EVAL_JOINTS]

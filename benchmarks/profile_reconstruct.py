@@ -67,6 +67,7 @@ def main() -> None:
     shutil.rmtree(cache, ignore_errors=True)
     os.environ["MONOAVATAR_CACHE"] = str(cache)  # an empty perception and stage cache
 
+    from monoavatar.datasets.synth_scene import stated_height
     from monoavatar.pipelines.reconstruct import ReconstructConfig, reconstruct
     from monoavatar.pipelines.stages import InputSettings
     from monoavatar.synth.scene import SynthConfig, generate
@@ -78,8 +79,7 @@ def main() -> None:
             generate(args.scene, SynthConfig(kind="turnaround", frames=args.frames, seed=0))
         info = json.loads((args.scene / "scene.json").read_text())
         focal = float(info["camera"]["K"][0][0])
-        subject = info["subjects"][0]  # the stated height: standing, without shoes
-        height = float(subject.get("stature_m", subject["height_m"]))
+        height = stated_height(info)
         source: Path = args.scene / "video.mp4"
         config = replace(config, input=InputSettings(frames=args.frames, focal=focal),
                          pose=replace(base.pose, height=height))  # fmt: skip

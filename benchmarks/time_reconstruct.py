@@ -41,10 +41,10 @@ def main() -> None:
         from monoavatar.synth.scene import SynthConfig, generate
 
         generate(args.scene, SynthConfig(kind="turnaround", frames=args.frames, seed=args.seed))
+    from monoavatar.datasets.synth_scene import stated_height
+
     info = json.loads((args.scene / "scene.json").read_text())
-    # the height a person states (standing, without shoes); scenes before format 4 lack it
-    subject = info["subjects"][0]
-    focal, height = info["camera"]["K"][0][0], subject.get("stature_m", subject["height_m"])
+    focal, height = info["camera"]["K"][0][0], stated_height(info)
     rows = []
     for k in range(args.repeat):
         out, cache = args.out / f"run{k}", args.out / "cache"

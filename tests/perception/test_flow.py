@@ -78,7 +78,7 @@ def test_flow_near_a_region_recovers_the_translation_inside_its_box() -> None:
 
 
 def test_region_box_grows_by_the_margin_and_clips_to_the_image() -> None:
-    from monoavatar.perception.flow import region_box
+    from monoavatar.perception.masks import region_box
 
     region = np.zeros((50, 40), bool)
     region[10:20, 30:35] = True

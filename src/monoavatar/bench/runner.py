@@ -56,6 +56,7 @@ from monoavatar.bench.suite import (
     ensure_scene,
     get_suite,
 )
+from monoavatar.datasets.synth_scene import stated_height
 
 __all__ = ["HEIGHT", "MAX_HELDOUT", "ReconstructFn", "run_bench"]
 
@@ -107,7 +108,7 @@ def _run_input(subject: BenchSubject, mode: BenchMode, scene: Path
         return scene, None
     info = json.loads((scene / "scene.json").read_text())
     return scene / "video.mp4", (float(info["camera"]["K"][0][0]),
-                                 float(info["subjects"][0]["stature_m"]))  # fmt: skip
+                                 stated_height(info))  # fmt: skip
 
 
 @contextmanager

@@ -69,6 +69,7 @@ def run_tracking_bench(out_dir: str | Path, *, quick: bool = False, progress: bo
                        scenes_dir: str | Path | None = None) -> dict[str, Any]:  # fmt: skip
     """Track each motion sequence and write ``tracking.json`` and ``tracking.md`` into
     ``out_dir``. A failing sequence is recorded with its error and the others go on."""
+    from monoavatar.datasets.synth_scene import stated_height
     from monoavatar.pipelines.track import TrackConfig, track
 
     out = Path(out_dir)
@@ -79,8 +80,7 @@ def run_tracking_bench(out_dir: str | Path, *, quick: bool = False, progress: bo
         info = json.loads((scene / "scene.json").read_text())
         config = TrackConfig(progress=progress)
         config.input = replace(config.input, perception="mediapipe")  # track's own otherwise
-        subject = info["subjects"][0]  # the height a person states: standing, without shoes
-        config.track.pose.height = float(subject.get("stature_m", subject["height_m"]))
+        config.track.pose.height = stated_height(info)
         folder = out / "tracking" / sequence.name
         if folder.exists():
             shutil.rmtree(folder)

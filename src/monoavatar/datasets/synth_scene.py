@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -139,6 +140,14 @@ class SynthScene:
     observations: Observations
     ground_truth: SynthGroundTruth
     info: dict
+
+
+def stated_height(info: dict[str, Any], subject: int = 0) -> float:
+    """The height subject ``subject`` of a parsed ``scene.json`` would state: metres, standing
+    without shoes or hair (``stature_m``; scenes before format 4 record only ``height_m``, the
+    clothed mesh's, which is then returned)."""
+    entry = info["subjects"][subject]
+    return float(entry.get("stature_m", entry["height_m"]))
 
 
 def _read_png_stack(folder: Path, count: int, what: str) -> list[np.ndarray]:

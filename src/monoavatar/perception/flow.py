@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 
 from monoavatar.perception.interfaces import FlowEstimator
+from monoavatar.perception.masks import region_box
 from monoavatar.perception.mediapipe_backend import check_image
 
 FlowMethod = Literal["dis", "deepflow"]
@@ -79,18 +80,6 @@ class DISFlow:
         out[rows, cols] = self.estimate(np.ascontiguousarray(image0[rows, cols]),
                                         np.ascontiguousarray(image1[rows, cols]))  # fmt: skip
         return out
-
-
-def region_box(region: np.ndarray, margin: int) -> tuple[slice, slice] | None:
-    """The (rows, cols) slices of the bounding box of ``region`` (H, W) bool grown by
-    ``margin`` pixels and clipped to the image; None when the region is empty."""
-    rows = np.flatnonzero(region.any(axis=1))
-    if rows.size == 0:
-        return None
-    cols = np.flatnonzero(region.any(axis=0))
-    h, w = region.shape
-    return (slice(max(0, int(rows[0]) - margin), min(h, int(rows[-1]) + 1 + margin)),
-            slice(max(0, int(cols[0]) - margin), min(w, int(cols[-1]) + 1 + margin)))  # fmt: skip
 
 
 class DeepFlow:

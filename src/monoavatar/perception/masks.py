@@ -190,6 +190,18 @@ def fill_holes(mask: np.ndarray, max_hole_fraction: float = 0.01) -> np.ndarray:
     return mask | np.isin(labels, holes)
 
 
+def region_box(region: np.ndarray, margin: int) -> tuple[slice, slice] | None:
+    """The (rows, cols) slices of the bounding box of ``region`` (H, W) bool grown by
+    ``margin`` pixels and clipped to the image; None when the region is empty."""
+    rows = np.flatnonzero(region.any(axis=1))
+    if rows.size == 0:
+        return None
+    cols = np.flatnonzero(region.any(axis=0))
+    h, w = region.shape
+    return (slice(max(0, int(rows[0]) - margin), min(h, int(rows[-1]) + 1 + margin)),
+            slice(max(0, int(cols[0]) - margin), min(w, int(cols[-1]) + 1 + margin)))  # fmt: skip
+
+
 def grabcut_refine(
     image: np.ndarray, mask: np.ndarray, band_px: int = 8, iterations: int = 3
 ) -> np.ndarray:
@@ -208,12 +220,10 @@ def grabcut_refine(
     mask = np.asarray(mask, dtype=bool)
     if band_px < 1 or not mask.any() or mask.all():
         return mask.copy()
-    h, w = mask.shape
-    ys, xs = np.nonzero(mask)
-    margin = 4 * band_px
-    y0, y1 = max(0, ys.min() - margin), min(h, ys.max() + 1 + margin)
-    x0, x1 = max(0, xs.min() - margin), min(w, xs.max() + 1 + margin)
-    sub = mask[y0:y1, x0:x1].astype(np.uint8)
+    box = region_box(mask, 4 * band_px)
+    assert box is not None  # the mask is not empty
+    rows, cols = box
+    sub = mask[rows, cols].astype(np.uint8)
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * band_px + 1, 2 * band_px + 1))
     inner = cv2.erode(sub, kernel, borderType=cv2.BORDER_REPLICATE).astype(bool)
     outer = cv2.dilate(sub, kernel, borderType=cv2.BORDER_REPLICATE).astype(bool)
@@ -224,11 +234,11 @@ def grabcut_refine(
     has_bg = np.any((trimap == cv2.GC_BGD) | (trimap == cv2.GC_PR_BGD))
     if not (has_fg and has_bg):
         return mask.copy()
-    crop = np.ascontiguousarray(image[y0:y1, x0:x1])
+    crop = np.ascontiguousarray(image[rows, cols])
     bgd = np.zeros((1, 65), np.float64)
     fgd = np.zeros((1, 65), np.float64)
     cv2.setRNGSeed(0)  # GrabCut's GMM initialisation uses k-means with OpenCV's RNG
     cv2.grabCut(crop, trimap, (0, 0, 0, 0), bgd, fgd, iterations, cv2.GC_INIT_WITH_MASK)
     out = mask.copy()
-    out[y0:y1, x0:x1] = (trimap == cv2.GC_FGD) | (trimap == cv2.GC_PR_FGD)
+    out[rows, cols] = (trimap == cv2.GC_FGD) | (trimap == cv2.GC_PR_FGD)
     return out
